@@ -1,0 +1,50 @@
+"""OpenCV StereoSGBM, the classical baseline every table compares against.
+
+The KITTI setting used throughout: MODE_SGBM_3WAY, blockSize 5, P1 = 8 * 25, P2 = 32 * 25,
+uniquenessRatio 10, speckle window 100 / range 2, disp12MaxDiff 1, 240 disparities (a
+multiple of 16 above KITTI's 228). With ``pad=True`` both images are left-padded by the
+disparity range (border replicate) and the padding is cropped off afterwards, so that the
+left band of the image, where a right match would leave the image, also gets estimates.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def sgbm_matcher(num_disp: int = 240, block_size: int = 5) -> "cv2.StereoSGBM":
+    num_disp = int(np.ceil(num_disp / 16) * 16)
+    return cv2.StereoSGBM_create(
+        minDisparity=0, numDisparities=num_disp, blockSize=block_size,
+        P1=8 * block_size * block_size, P2=32 * block_size * block_size,
+        disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
+        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
+def _to_u8(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image)
+    if img.dtype == np.uint16:
+        img = (img / 257.0).round().astype(np.uint8)
+    elif img.dtype != np.uint8:
+        scale = 255.0 if img.max() <= 1.0 else 1.0
+        img = np.clip(img * scale, 0, 255).round().astype(np.uint8)
+    return img
+
+
+def sgbm_disparity(left: np.ndarray, right: np.ndarray, num_disp: int = 240, pad: bool = True,
+                   block_size: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV StereoSGBM disparity of a pair: (``f32[H, W]`` disparity, ``bool[H, W]`` valid)."""
+    matcher = sgbm_matcher(num_disp, block_size)
+    nd = matcher.getNumDisparities()
+    l8, r8 = _to_u8(left), _to_u8(right)
+    if pad:
+        border = [(0, 0), (nd, 0)] + [(0, 0)] * (l8.ndim - 2)
+        l8 = np.pad(l8, border, mode="edge")
+        r8 = np.pad(r8, border, mode="edge")
+    raw = matcher.compute(np.ascontiguousarray(l8), np.ascontiguousarray(r8))
+    if pad:
+        raw = raw[:, nd:]
+    disp = raw.astype(np.float32) / 16.0
+    valid = raw >= 0   # OpenCV marks invalid pixels with (minDisparity - 1) * 16 < 0
+    return np.where(valid, disp, 0.0).astype(np.float32), valid

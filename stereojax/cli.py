@@ -1,0 +1,319 @@
+"""The ``stereojax`` command: predict, evaluate, demo, bench.
+
+Every user mistake ends with one line on stderr and the exit code of its error class
+(see README, "Exit codes"); outputs are written atomically, so an interrupted run leaves
+either the complete file or none.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .errors import ConfigError, OutputError, StereoError, StereoInputError
+
+DEFAULT_MAX_DISP = 228
+
+
+# ---- helpers -----------------------------------------------------------------------------------
+
+def _config(args, max_disp: int):
+    from .config import StereoConfig, preset
+
+    if getattr(args, "config", None):
+        try:
+            text = Path(args.config).read_text()
+        except OSError as exc:
+            raise ConfigError(f"cannot read config file {args.config}: {exc.strerror}") from None
+        cfg = StereoConfig.from_json(text)
+        return cfg.with_max_disp(max_disp)
+    return preset(args.method, max_disp)
+
+
+def _check_out_dir(path: Path) -> Path:
+    """Create the output folder and check that it is writable before any long computation."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create output folder {path}: {exc.strerror}") from None
+    if not path.is_dir() or not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"output folder {path} is not writable")
+    return path
+
+
+def write_json(path: Path, data) -> None:
+    from .data.io import atomic_output
+
+    with atomic_output(path) as tmp:
+        Path(tmp).write_text(json.dumps(data, indent=2, sort_keys=True, default=_json_default) + "\n")
+
+
+def _json_default(obj):
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def _run_pipeline(left, right, cfg):
+    """Run the chain; returns (disparity f32[H, W], timings dict). The first call of a shape
+    and config includes compilation."""
+    import jax.numpy as jnp
+
+    from . import pipeline
+
+    t0 = time.perf_counter()
+    gl, gr = pipeline.prepare_pair(left, right, cfg)
+    disp = np.asarray(pipeline.disparity_grey(jnp.asarray(gl), jnp.asarray(gr), cfg))
+    return disp, {"seconds": time.perf_counter() - t0}
+
+
+def _write_prediction(out: Path, stem: str, disp, max_disp, calib=None, image=None, ply=False):
+    """Write disparity (KITTI png + colour png) and depth files; returns the written names."""
+    from .data import io
+    from . import depth as depth_mod
+
+    written = []
+    io.write_kitti_disparity(out / f"{stem}disparity.png", disp)
+    io.write_color_disparity(out / f"{stem}disparity_color.png", disp, max_disp=max_disp)
+    written += [f"{stem}disparity.png", f"{stem}disparity_color.png"]
+    if calib is not None:
+        z = depth_mod.disparity_to_depth(disp, calib.baseline, calib.focal, calib.doffs)
+        depth_mod.write_depth(out / f"{stem}depth.png", z)
+        depth_mod.write_depth(out / f"{stem}depth.npy", z)
+        written += [f"{stem}depth.png", f"{stem}depth.npy"]
+        if ply and image is not None:
+            xyz, rgb = depth_mod.point_cloud(disp, image, calib)
+            depth_mod.write_ply(out / f"{stem}points.ply", xyz, rgb)
+            written.append(f"{stem}points.ply")
+    return written
+
+
+# ---- commands ----------------------------------------------------------------------------------
+
+def cmd_predict(args) -> int:
+    from .data.datasets import Calibration, load_pair
+
+    out = _check_out_dir(Path(args.out))
+    sample = load_pair(args.left, args.right)
+    cfg = _config(args, args.max_disp)
+    calib = None
+    if (args.baseline is None) != (args.focal is None):
+        raise ConfigError("--baseline and --focal must be given together")
+    if args.baseline is not None:
+        if args.baseline <= 0 or args.focal <= 0:
+            raise ConfigError(f"--baseline and --focal must be > 0, got {args.baseline}, {args.focal}")
+        calib = Calibration(baseline=args.baseline, focal=args.focal, doffs=args.doffs)
+    disp, timings = _run_pipeline(sample.left, sample.right, cfg)
+    written = _write_prediction(out, "", disp, cfg.max_disp, calib, sample.left, ply=args.ply)
+    write_json(out / "config.json", cfg.to_dict())
+    write_json(out / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
+                                      "max_disp": cfg.max_disp, "method": cfg.cost.method})
+    print(f"disparity {disp.shape[1]}x{disp.shape[0]}, {timings['seconds']:.2f} s "
+          f"-> {out} ({', '.join(written + ['config.json', 'timings.json'])})")
+    return 0
+
+
+def _parse_frames(spec: str | None):
+    """'000021-000030' or '21-30' -> ids; comma lists allowed; None/'all' -> None (all frames)."""
+    if spec is None or spec in ("", "all"):
+        return None
+    frames = []
+    for part in spec.split(","):
+        part = part.strip()
+        if "-" in part:
+            a, b = part.split("-", 1)
+            if not (a.isdigit() and b.isdigit()) or int(b) < int(a):
+                raise StereoInputError(f"bad frame range {part!r}; expected e.g. 000021-000030")
+            width = max(len(a), 6)
+            frames += [f"{i:0{width}d}" for i in range(int(a), int(b) + 1)]
+        elif part:
+            frames.append(f"{int(part):06d}" if part.isdigit() else part)
+    return frames
+
+
+def _max_disp_for(dataset: str, sample, requested: int | None) -> int:
+    if requested is not None:
+        return requested
+    if dataset.startswith("kitti"):
+        return DEFAULT_MAX_DISP
+    if sample.max_disp_hint:
+        return int(sample.max_disp_hint)
+    if sample.gt is not None and sample.gt_valid is not None and sample.gt_valid.any():
+        return int(np.ceil(sample.gt[sample.gt_valid].max() * 1.1)) + 1
+    return min(DEFAULT_MAX_DISP, sample.left.shape[1] // 3)
+
+
+def cmd_evaluate(args) -> int:
+    from tqdm import tqdm
+
+    from . import metrics
+    from .baselines import sgbm_disparity
+    from .data import io
+    from .data.datasets import load_dataset
+
+    out = _check_out_dir(Path(args.out))
+    frames = _parse_frames(args.frames)
+    items = load_dataset(args.data, args.dataset, frames=frames, gt=args.gt)
+    per_frame, missing_gt = [], []
+    methods = ["pipeline"] + (["sgbm"] if args.sgbm else [])
+    bar = tqdm(items, desc=f"evaluate {args.dataset}", unit="frame", file=sys.stderr)
+    for frame_id, load in bar:
+        sample = load()
+        if sample.gt is None:
+            missing_gt.append(frame_id)
+            continue
+        max_disp = _max_disp_for(args.dataset, sample, args.max_disp)
+        cfg = _config(args, max_disp)
+        row = {"frame": frame_id, "max_disp": max_disp}
+        disp, timings = _run_pipeline(sample.left, sample.right, cfg)
+        row["pipeline"] = {**metrics.evaluate(disp, sample.gt, sample.gt_valid, fill=args.fill),
+                           "seconds": timings["seconds"]}
+        _write_prediction(out, f"{frame_id}_", disp, max_disp)
+        io.write_error_map(out / f"{frame_id}_error.png", disp, sample.gt, sample.gt_valid)
+        if args.sgbm:
+            t0 = time.perf_counter()
+            d_cv, v_cv = sgbm_disparity(sample.left, sample.right, num_disp=max_disp, pad=True)
+            row["sgbm"] = {**metrics.evaluate(d_cv, sample.gt, sample.gt_valid, est_valid=v_cv,
+                                              fill=args.fill), "seconds": time.perf_counter() - t0}
+        per_frame.append(row)
+        bar.set_postfix(bad3=f"{row['pipeline']['bad3']:.2f}%")
+    if missing_gt:
+        names = ", ".join(missing_gt[:5]) + (" ..." if len(missing_gt) > 5 else "")
+        msg = f"no {args.gt} ground truth for {len(missing_gt)} frame(s): {names}"
+        if not per_frame:
+            raise StereoInputError(msg + "; nothing to evaluate")
+        print(f"warning: {msg}; skipped", file=sys.stderr)
+    summary = {m: metrics.mean_metrics([r[m] for r in per_frame]) for m in methods}
+    for m in methods:
+        # the first frame's time includes compilation; report the warm mean separately
+        secs = [r[m]["seconds"] for r in per_frame]
+        summary[m]["seconds_warm"] = float(np.mean(secs[1:])) if len(secs) > 1 else float(secs[0])
+    result = {"dataset": args.dataset, "gt": args.gt, "fill": args.fill, "frames": per_frame,
+              "mean": summary, "config": _config(args, per_frame[0]["max_disp"]).to_dict()}
+    write_json(out / "results.json", result)
+    table = format_table(summary)
+    with io.atomic_output(out / "results.md") as tmp:
+        Path(tmp).write_text(f"# {args.dataset}, {len(per_frame)} frames, {args.gt} GT, "
+                             f"missing estimates: {args.fill}\n\n{table}\n")
+    print(table)
+    print(f"-> {out}/results.json")
+    return 0
+
+
+def format_table(summary: dict) -> str:
+    cols = ["bad2", "bad3", "bad4", "bad5", "d1", "epe", "density", "seconds_warm"]
+    head = "| method | >2 px % | >3 px % | >4 px % | >5 px % | D1 % | EPE px | density % | s/frame |"
+    lines = [head, "|" + "---|" * (len(cols) + 1)]
+    for name, m in summary.items():
+        lines.append(f"| {name} | " + " | ".join(f"{m[c]:.2f}" for c in cols) + " |")
+    return "\n".join(lines)
+
+
+def cmd_demo(args) -> int:
+    from . import metrics
+    from .data import io
+    from .data.datasets import load_builtin_sample
+
+    out = _check_out_dir(Path(args.out))
+    sample = load_builtin_sample()
+    max_disp = args.max_disp or int(sample.max_disp_hint or 70)
+    cfg = _config(args, max_disp)
+    print(f"built-in sample: {sample.name} {sample.left.shape[1]}x{sample.left.shape[0]}, "
+          f"{max_disp} disparities, method {cfg.cost.method}")
+    disp, timings = _run_pipeline(sample.left, sample.right, cfg)
+    written = _write_prediction(out, "", disp, max_disp, sample.calib, sample.left, ply=True)
+    io.write_png(out / "left.png", sample.left)
+    m = metrics.evaluate(disp, sample.gt, sample.gt_valid)
+    io.write_error_map(out / "error.png", disp, sample.gt, sample.gt_valid)
+    write_json(out / "metrics.json", {**m, **timings, "method": cfg.cost.method, "max_disp": max_disp})
+    print(f">2 px {m['bad2']:.2f} %   >3 px {m['bad3']:.2f} %   >4 px {m['bad4']:.2f} %   "
+          f">5 px {m['bad5']:.2f} %   EPE {m['epe']:.2f} px   ({timings['seconds']:.1f} s incl. compile)")
+    print(f"-> {out} ({', '.join(written + ['left.png', 'error.png', 'metrics.json'])})")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from .bench import run_bench
+
+    run_bench(Path(args.out), repeats=args.repeats, max_disp=args.max_disp)
+    return 0
+
+
+# ---- entry point -------------------------------------------------------------------------------
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="stereojax", description="Stereo matching in JAX: disparity and depth "
+                                "from a rectified pair (census/SAD cost, CBCA, SGM, refinement).")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    def add_method(sp):
+        sp.add_argument("--method", default="census", choices=["census", "sad"],
+                        help="matching cost preset (default: census)")
+        sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides --method)")
+
+    sp = sub.add_parser("predict", help="disparity (and depth) of one rectified pair")
+    sp.add_argument("left")
+    sp.add_argument("right")
+    sp.add_argument("--out", required=True, help="output folder")
+    sp.add_argument("--max-disp", type=int, default=DEFAULT_MAX_DISP, help="number of disparities (default 228)")
+    sp.add_argument("--baseline", type=float, help="baseline in metres (for depth)")
+    sp.add_argument("--focal", type=float, help="focal length in pixels (for depth)")
+    sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")
+    sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs calibration)")
+    add_method(sp)
+    sp.set_defaults(func=cmd_predict)
+
+    sp = sub.add_parser("evaluate", help="score the pipeline on KITTI 2012/2015 or Middlebury")
+    sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data/kitti2015/training)")
+    sp.add_argument("--dataset", required=True, choices=["kitti2015", "kitti2012", "middlebury"])
+    sp.add_argument("--frames", help="e.g. 000021-000030 or 21,22 (default: all)")
+    sp.add_argument("--gt", default="noc", choices=["noc", "occ"], help="ground truth (default noc)")
+    sp.add_argument("--fill", default="interpolate", choices=["interpolate", "error"],
+                    help="pixels without estimate: KITTI background interpolation, or count as errors")
+    sp.add_argument("--max-disp", type=int, help="default: 228 for KITTI, ndisp/GT for Middlebury")
+    sp.add_argument("--sgbm", action="store_true", help="also score OpenCV StereoSGBM (left-padded)")
+    sp.add_argument("--out", default="out/evaluate", help="output folder")
+    add_method(sp)
+    sp.set_defaults(func=cmd_evaluate)
+
+    sp = sub.add_parser("demo", help="run the built-in Middlebury Motorcycle pair and print its errors")
+    sp.add_argument("--out", default="out/demo")
+    sp.add_argument("--max-disp", type=int, help="default: the sample's disparity range")
+    add_method(sp)
+    sp.set_defaults(func=cmd_demo)
+
+    sp = sub.add_parser("bench", help="time every stage on a KITTI-sized frame (and OpenCV SGBM)")
+    sp.add_argument("--out", default="experiments/results")
+    sp.add_argument("--repeats", type=int, default=3)
+    sp.add_argument("--max-disp", type=int, default=DEFAULT_MAX_DISP)
+    sp.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except StereoError as exc:
+        print(f"stereojax {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"stereojax {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print(f"stereojax {args.command}: error: out of memory; try a smaller --max-disp or image",
+              file=sys.stderr)
+        return 6
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,239 @@
+"""Frozen, hashable configuration of every pipeline stage, with validation and JSON round-trip.
+
+Configs are passed to jitted functions as static arguments, so they must be hashable
+(frozen dataclasses of plain numbers and strings). Every cost the pipeline handles is
+normalised to [0, 1] (census: fraction of differing bits; SAD: mean absolute grey
+difference / 255; learned: 1 - similarity), so the penalties below live on one scale.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import json
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Mapping
+
+from .errors import ConfigError
+
+COST_METHODS = ("census", "sad")
+
+
+@dataclass(frozen=True)
+class CostConfig:
+    """Classical matching cost.
+
+    method: "census" (Hamming distance of census transforms) or "sad" (paper Eq. 3.1).
+    census_radius: (ry, rx) half-sizes of the census window, e.g. (3, 4) is 7x9.
+    sad_radius: half-size of the square SAD window.
+    """
+
+    method: str = "census"
+    census_radius: tuple[int, int] = (3, 4)
+    sad_radius: int = 2
+
+    def validate(self) -> None:
+        if self.method not in COST_METHODS:
+            raise ConfigError(f"cost.method must be one of {COST_METHODS}, got {self.method!r}")
+        ry, rx = self.census_radius
+        if ry < 1 or rx < 1 or (2 * ry + 1) * (2 * rx + 1) - 1 > 96:
+            raise ConfigError(
+                f"cost.census_radius must be >= 1 with at most 96 census bits, got {self.census_radius}")
+        if self.sad_radius < 0:
+            raise ConfigError(f"cost.sad_radius must be >= 0, got {self.sad_radius}")
+
+
+@dataclass(frozen=True)
+class AggregationConfig:
+    """Cross-based cost aggregation (CBCA), as used by MC-CNN.
+
+    tau: intensity threshold of the cross arms, in grey levels (0-255).
+    arm_length: maximum arm length in pixels (each of the four arms).
+    iterations_before / iterations_after: CBCA passes before and after SGM.
+    """
+
+    tau: float = 20.0
+    arm_length: int = 5
+    iterations_before: int = 2
+    iterations_after: int = 0
+
+    def validate(self) -> None:
+        if self.tau <= 0:
+            raise ConfigError(f"cbca.tau must be > 0 grey levels, got {self.tau}")
+        if self.arm_length < 1:
+            raise ConfigError(f"cbca.arm_length must be >= 1, got {self.arm_length}")
+        if self.iterations_before < 0 or self.iterations_after < 0:
+            raise ConfigError("cbca iterations must be >= 0, got "
+                              f"{self.iterations_before}, {self.iterations_after}")
+
+
+@dataclass(frozen=True)
+class SGMConfig:
+    """Semi-global matching.
+
+    directions: 0 (off), 4 (horizontal + vertical) or 8 (plus diagonals).
+    p1, p2: penalties for a disparity change of 1 and of more than 1 (cost units, costs in [0, 1]).
+    adaptive: MC-CNN's gradient-dependent reduction: where the grey-level change along the
+      path exceeds `grad_threshold` in the left image and in the right image at the
+      matching pixel, penalties are divided by q2; where it exceeds it in one of the two,
+      by q1. `vertical_factor` divides p1 on vertical paths (MC-CNN's alpha; 1 = off).
+    """
+
+    directions: int = 4
+    p1: float = 0.02
+    p2: float = 0.25
+    adaptive: bool = True
+    q1: float = 3.0
+    q2: float = 6.0
+    grad_threshold: float = 15.0
+    vertical_factor: float = 1.0
+
+    def validate(self) -> None:
+        if self.directions not in (0, 4, 8):
+            raise ConfigError(f"sgm.directions must be 0, 4 or 8, got {self.directions}")
+        if self.p1 < 0 or self.p2 < 0:
+            raise ConfigError(f"sgm penalties must be >= 0, got p1={self.p1}, p2={self.p2}")
+        if self.p2 < self.p1:
+            raise ConfigError(f"sgm.p2 must be >= sgm.p1, got p1={self.p1}, p2={self.p2}")
+        if self.q1 < 1 or self.q2 < 1 or self.vertical_factor < 1:
+            raise ConfigError("sgm.q1, sgm.q2 and sgm.vertical_factor must be >= 1, got "
+                              f"{self.q1}, {self.q2}, {self.vertical_factor}")
+
+
+@dataclass(frozen=True)
+class RefineConfig:
+    """Disparity refinement after winner-takes-all.
+
+    lr_check: left-right consistency check with occlusion/mismatch labelling and filling.
+    lr_tolerance: |d_left - d_right| allowed, in pixels.
+    right_from_left: derive the right view's disparities from the left aggregated volume
+      (C_R(x, d) = C_L(x + d, d), as in Hirschmueller 2008) instead of aggregating the right
+      volume separately; about half the work.
+    subpixel: parabola fit through the costs at d - 1, d, d + 1.
+    median_size: odd window of the median filter (0 or 1 = off).
+    bilateral_radius, bilateral_sigma_space, bilateral_sigma_range: joint bilateral filter of
+      the disparity guided by the left grey image (radius 0 = off; sigma_range in grey levels).
+    """
+
+    lr_check: bool = True
+    lr_tolerance: float = 1.0
+    right_from_left: bool = True
+    subpixel: bool = True
+    median_size: int = 5
+    bilateral_radius: int = 2
+    bilateral_sigma_space: float = 1.7
+    bilateral_sigma_range: float = 12.0
+
+    def validate(self) -> None:
+        if self.lr_tolerance < 0:
+            raise ConfigError(f"refine.lr_tolerance must be >= 0, got {self.lr_tolerance}")
+        if self.median_size < 0 or (self.median_size > 1 and self.median_size % 2 == 0):
+            raise ConfigError(f"refine.median_size must be 0, 1 or odd, got {self.median_size}")
+        if self.bilateral_radius < 0 or self.bilateral_sigma_space <= 0 or self.bilateral_sigma_range <= 0:
+            raise ConfigError("refine bilateral radius must be >= 0 and sigmas > 0, got "
+                              f"{self.bilateral_radius}, {self.bilateral_sigma_space}, "
+                              f"{self.bilateral_sigma_range}")
+
+
+@dataclass(frozen=True)
+class StereoConfig:
+    """The whole chain: matching cost -> CBCA -> SGM -> CBCA -> WTA -> LR check -> refinement."""
+
+    max_disp: int = 228
+    cost: CostConfig = field(default_factory=CostConfig)
+    cbca: AggregationConfig = field(default_factory=AggregationConfig)
+    sgm: SGMConfig = field(default_factory=SGMConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+
+    def validate(self) -> "StereoConfig":
+        if not isinstance(self.max_disp, int) or isinstance(self.max_disp, bool) or self.max_disp <= 0:
+            raise ConfigError(f"max_disp must be a positive integer, got {self.max_disp!r}")
+        for sub in (self.cost, self.cbca, self.sgm, self.refine):
+            sub.validate()
+        return self
+
+    # ---- JSON round trip -------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "StereoConfig":
+        return _from_dict(cls, data, "").validate()
+
+    @classmethod
+    def from_json(cls, text: str) -> "StereoConfig":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"config is not valid JSON: {exc}") from None
+        if not isinstance(data, dict):
+            raise ConfigError(f"config JSON must be an object, got {type(data).__name__}")
+        return cls.from_dict(data)
+
+    def with_max_disp(self, max_disp: int) -> "StereoConfig":
+        return replace(self, max_disp=max_disp).validate()
+
+
+def _from_dict(cls, data: Mapping[str, Any], prefix: str):
+    known = {f.name: f for f in fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        if key not in known:
+            close = difflib.get_close_matches(key, list(known), n=1)
+            hint = f"; did you mean {prefix}{close[0]!r}?" if close else f"; valid keys: {sorted(known)}"
+            raise ConfigError(f"unknown config key {prefix}{key!r}{hint}")
+        default = getattr(cls(), key)
+        sub_cls = _SUB_CONFIGS.get(key)
+        if sub_cls is not None:
+            if not isinstance(value, Mapping):
+                raise ConfigError(f"config key {prefix}{key!r} must be an object, got {value!r}")
+            kwargs[key] = _from_dict(sub_cls, value, f"{prefix}{key}.")
+        else:
+            kwargs[key] = _coerce(value, default, f"{prefix}{key}")
+    return cls(**kwargs)
+
+
+def _coerce(value: Any, default: Any, name: str) -> Any:
+    """Convert a JSON value to the type of the field's default (tuples, ints, floats, bools)."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"config key {name!r} must be true or false, got {value!r}")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or int(value) != value:
+            raise ConfigError(f"config key {name!r} must be an integer, got {value!r}")
+        return int(value)
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"config key {name!r} must be a number, got {value!r}")
+        return float(value)
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)) or len(value) != len(default):
+            raise ConfigError(f"config key {name!r} must be a list of {len(default)} values, got {value!r}")
+        return tuple(_coerce(v, d, name) for v, d in zip(value, default))
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(f"config key {name!r} must be a string, got {value!r}")
+        return value
+    return value
+
+
+_SUB_CONFIGS = {"cost": CostConfig, "cbca": AggregationConfig, "sgm": SGMConfig, "refine": RefineConfig}
+
+
+def preset(name: str, max_disp: int = 228) -> StereoConfig:
+    """Named pipeline settings. "census" and "sad" are tuned on KITTI 2015 frames 000001-000020."""
+    presets = {
+        "census": StereoConfig(max_disp=max_disp),
+        "sad": StereoConfig(
+            max_disp=max_disp,
+            cost=CostConfig(method="sad", sad_radius=3),
+            sgm=SGMConfig(p1=0.01, p2=0.12),
+        ),
+    }
+    if name not in presets:
+        raise ConfigError(f"unknown preset {name!r}; choose one of {sorted(presets)}")
+    return presets[name].validate()

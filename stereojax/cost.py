@@ -1,0 +1,130 @@
+"""Classical matching costs: census (Hamming distance) and SAD (paper Eq. 3.1).
+
+Every cost volume is ``f32[H, W, D]`` with values in [0, 1], lower is better, for
+disparities d = 0 .. D-1. The left-view volume compares left (y, x) with right
+(y, x - d); the right-view volume compares right (y, x) with left (y, x + d).
+Entries whose match leaves the image carry the finite sentinel ``INVALID_COST`` (the
+worst possible cost), and :func:`valid_mask` tells which they are.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+INVALID_COST = 1.0
+
+
+def to_grey(image: jax.Array) -> jax.Array:
+    """``f32[H, W]`` grey levels in 0..255 from ``[H, W]`` or ``[H, W, 3]`` RGB input.
+
+    uint16 images are scaled to 0..255 by 1/257; float images are taken as given.
+    """
+    img = jnp.asarray(image)
+    if img.dtype == jnp.uint16:
+        img = img.astype(jnp.float32) / 257.0
+    img = img.astype(jnp.float32)
+    if img.ndim == 3:
+        img = img[..., 0] * 0.299 + img[..., 1] * 0.587 + img[..., 2] * 0.114
+    return img
+
+
+def valid_mask(width: int, max_disp: int, view: str = "left") -> jax.Array:
+    """``bool[W, D]``: True where the match of (x, d) lies inside the other image."""
+    x = jnp.arange(width)[:, None]
+    d = jnp.arange(max_disp)[None, :]
+    return (x - d >= 0) if view == "left" else (x + d < width)
+
+
+def shifted_stack(other: jax.Array, max_disp: int, view: str = "left") -> jax.Array:
+    """``[H, W, D, ...]`` view of the other image at the matching column of every (x, d).
+
+    For view "left": out[y, x, d] = other[y, x - d]; for "right": out[y, x, d] = other[y, x + d].
+    Columns outside the image repeat the border (their costs are masked later).
+    """
+    w = other.shape[1]
+    pad = [(0, 0)] * other.ndim
+    if view == "left":
+        pad[1] = (max_disp, 0)
+        padded = jnp.pad(other, pad, mode="edge")
+        slices = [padded[:, max_disp - d: max_disp - d + w] for d in range(max_disp)]
+    else:
+        pad[1] = (0, max_disp)
+        padded = jnp.pad(other, pad, mode="edge")
+        slices = [padded[:, d: d + w] for d in range(max_disp)]
+    return jnp.stack(slices, axis=2)
+
+
+# ---- census --------------------------------------------------------------------------------
+
+def census_transform(grey: jax.Array, radius: tuple[int, int]) -> jax.Array:
+    """``u32[H, W, K]`` census bit strings (neighbour < centre), K = ceil(bits / 32) words.
+
+    The window is (2 ry + 1) x (2 rx + 1) minus the centre; borders replicate the edge.
+    """
+    ry, rx = radius
+    h, w = grey.shape
+    padded = jnp.pad(grey, ((ry, ry), (rx, rx)), mode="edge")
+    offsets = [(dy, dx) for dy in range(-ry, ry + 1) for dx in range(-rx, rx + 1) if (dy, dx) != (0, 0)]
+    n_words = (len(offsets) + 31) // 32
+    words = []
+    for k in range(n_words):
+        word = jnp.zeros((h, w), jnp.uint32)
+        for bit, (dy, dx) in enumerate(offsets[32 * k: 32 * (k + 1)]):
+            neighbour = padded[ry + dy: ry + dy + h, rx + dx: rx + dx + w]
+            word = word | ((neighbour < grey).astype(jnp.uint32) << bit)
+        words.append(word)
+    return jnp.stack(words, axis=-1)
+
+
+def census_bits(radius: tuple[int, int]) -> int:
+    ry, rx = radius
+    return (2 * ry + 1) * (2 * rx + 1) - 1
+
+
+def census_cost(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4), view: str = "left"):
+    """Census cost volume ``f32[H, W, D]`` in [0, 1] (fraction of differing bits) for one view.
+
+    left, right: ``f32[H, W]`` grey images. Returns the volume with invalid entries set to
+    ``INVALID_COST``.
+    """
+    cl = census_transform(left, radius)
+    cr = census_transform(right, radius)
+    ref, other = (cl, cr) if view == "left" else (cr, cl)
+    shifted = shifted_stack(other, max_disp, view)                      # u32[H, W, D, K]
+    diff = jax.lax.population_count(ref[:, :, None, :] ^ shifted).astype(jnp.float32).sum(-1)
+    cost = diff / census_bits(radius)
+    return jnp.where(valid_mask(left.shape[1], max_disp, view)[None], cost, INVALID_COST)
+
+
+# ---- SAD ------------------------------------------------------------------------------------
+
+def box_mean(volume: jax.Array, radius: int) -> jax.Array:
+    """Mean over a (2r+1) x (2r+1) window on the first two axes (edge-replicated), any trailing axes."""
+    if radius == 0:
+        return volume
+    pad = [(radius, radius), (radius, radius)] + [(0, 0)] * (volume.ndim - 2)
+    v = jnp.pad(volume, pad, mode="edge")
+    s = jnp.cumsum(jnp.cumsum(v, axis=0), axis=1)
+    s = jnp.pad(s, [(1, 0), (1, 0)] + [(0, 0)] * (volume.ndim - 2))
+    k = 2 * radius + 1
+    h, w = volume.shape[:2]
+    total = s[k:k + h, k:k + w] - s[:h, k:k + w] - s[k:k + h, :w] + s[:h, :w]
+    return total / (k * k)
+
+
+def sad_cost(left: jax.Array, right: jax.Array, max_disp: int, radius: int = 2, view: str = "left"):
+    """SAD cost volume ``f32[H, W, D]`` (paper Eq. 3.1): window mean of |I_L - I_R| / 255."""
+    ref, other = (left, right) if view == "left" else (right, left)
+    ad = jnp.abs(ref[:, :, None] - shifted_stack(other, max_disp, view)) / 255.0
+    cost = box_mean(ad, radius)
+    return jnp.where(valid_mask(left.shape[1], max_disp, view)[None], cost, INVALID_COST)
+
+
+def matching_cost(left: jax.Array, right: jax.Array, max_disp: int, cfg, view: str = "left") -> jax.Array:
+    """Dispatch on ``cfg.method`` (a :class:`stereojax.config.CostConfig`)."""
+    if cfg.method == "census":
+        return census_cost(left, right, max_disp, cfg.census_radius, view)
+    if cfg.method == "sad":
+        return sad_cost(left, right, max_disp, cfg.sad_radius, view)
+    raise ValueError(f"unknown cost method {cfg.method!r}")

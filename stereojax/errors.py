@@ -1,0 +1,36 @@
+"""Typed exceptions raised at the public boundaries of stereojax.
+
+Every user mistake (bad file, bad shape, bad option) raises a subclass of
+:class:`StereoError` whose message says what was expected and what was found.
+The CLI maps each class to a documented exit code and prints one line.
+"""
+
+
+class StereoError(Exception):
+    """Base class of all errors stereojax raises on bad input."""
+
+    exit_code = 1
+
+
+class StereoInputError(StereoError, ValueError):
+    """An image, a pair of images, a ground-truth map or a data folder is unusable."""
+
+    exit_code = 2
+
+
+class ConfigError(StereoError, ValueError):
+    """A configuration value is out of range or contradicts another value."""
+
+    exit_code = 3
+
+
+class CheckpointError(StereoError):
+    """A checkpoint is missing, corrupt, or from another architecture."""
+
+    exit_code = 4
+
+
+class OutputError(StereoError, OSError):
+    """An output file or folder cannot be written."""
+
+    exit_code = 5

@@ -1,0 +1,161 @@
+"""The composed stereo chain: matching cost -> CBCA -> SGM -> CBCA -> WTA -> LR check and
+filling -> sub-pixel -> median -> bilateral, as one jitted function.
+
+``disparity(left, right, config)`` validates its inputs (numpy, at the boundary), converts
+them to grey ``f32[H, W]`` and runs the jitted chain; ``stages(...)`` returns every
+intermediate result for inspection.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import aggregation, cost as cost_mod, refine
+from .config import StereoConfig
+from .errors import ConfigError, StereoInputError
+from .sgm import sgm
+
+
+def _as_grey(image: Any, name: str) -> np.ndarray:
+    """Validate one image and return grey ``f32[H, W]`` in 0..255 (numpy)."""
+    arr = np.asarray(image)
+    if arr.ndim == 3 and arr.shape[2] == 4:
+        arr = arr[..., :3]
+    if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 3)):
+        raise StereoInputError(f"{name} image must be HxW grey or HxWx3 colour, got shape {arr.shape}")
+    if arr.dtype == np.bool_ or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise StereoInputError(f"{name} image must have an integer or float dtype, got {arr.dtype}")
+    if np.issubdtype(arr.dtype, np.floating):
+        if not np.all(np.isfinite(arr)):
+            raise StereoInputError(f"{name} image contains NaN or infinite values")
+        arr = arr.astype(np.float32)
+        if arr.size and arr.max() <= 1.0:   # float images in [0, 1]
+            arr = arr * 255.0
+    elif arr.dtype == np.uint16:
+        arr = arr.astype(np.float32) / 257.0
+    else:
+        arr = arr.astype(np.float32)
+    if arr.ndim == 3:
+        arr = arr[..., 0] * 0.299 + arr[..., 1] * 0.587 + arr[..., 2] * 0.114
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def min_image_size(config: StereoConfig) -> int:
+    """Smallest height/width the chain accepts (the largest window it uses)."""
+    c = config.cost
+    windows = [2 * max(c.census_radius) + 1, 2 * c.sad_radius + 1, config.refine.median_size,
+               2 * config.refine.bilateral_radius + 1, 2 * config.cbca.arm_length + 1]
+    return max(windows)
+
+
+def prepare_pair(left: Any, right: Any, config: StereoConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Check a pair against a config; return grey ``f32[H, W]`` left and right images."""
+    config.validate()
+    gl, gr = _as_grey(left, "left"), _as_grey(right, "right")
+    if gl.shape != gr.shape:
+        raise StereoInputError(f"left is {gl.shape[0]}x{gl.shape[1]} but right is "
+                               f"{gr.shape[0]}x{gr.shape[1]}; a rectified pair has equal sizes")
+    h, w = gl.shape
+    need = min_image_size(config)
+    if h < need or w < need:
+        raise StereoInputError(f"image is {h}x{w}, smaller than the {need}x{need} window the "
+                               "configuration needs")
+    if config.max_disp >= w:
+        raise StereoInputError(f"max_disp must be smaller than the image width {w}, got {config.max_disp}")
+    return gl, gr
+
+
+def _view_chain(cost, ref, other, config: StereoConfig, view: str):
+    """CBCA -> SGM -> CBCA for one view. Returns dict of volumes."""
+    arms = aggregation.cross_arms(ref, config.cbca.tau, config.cbca.arm_length)
+    c1 = aggregation.cbca(cost, arms, config.cbca.iterations_before, config.cbca.arm_length)
+    if view == "left":
+        c2 = sgm(c1, ref, other, config.sgm)
+    else:
+        # right view: reuse the left-view recurrences on mirrored images (x -> W - 1 - x turns
+        # "match at x + d" into "match at x' - d")
+        mirrored = sgm(c1[:, ::-1], ref[:, ::-1], other[:, ::-1], config.sgm)
+        c2 = mirrored[:, ::-1]
+    c3 = aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
+    return c1, c2, c3
+
+
+def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, params=None,
+           keep: bool = True) -> dict[str, jax.Array]:
+    d = config.max_disp
+    vol = cost_mod.matching_cost(left, right, d, config.cost, "left")
+    c_cbca, c_sgm, c_final = _view_chain(vol, left, right, config, "left")
+    disp_wta = refine.wta(c_final)
+    out = {"disp_wta": disp_wta}
+    if keep:
+        out.update(cost=vol, cost_cbca=c_cbca, cost_sgm=c_sgm, cost_final=c_final)
+
+    disp = disp_wta.astype(jnp.float32)
+    if config.refine.lr_check:
+        if config.refine.right_from_left:
+            c_right = refine.right_cost_from_left(c_final, cost_mod.INVALID_COST)
+        else:
+            vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
+            c_right = _view_chain(vol_r, right, left, config, "right")[2]
+        disp_right = refine.wta(c_right)
+        labels = refine.lr_check(disp, disp_right.astype(jnp.float32), d, config.refine.lr_tolerance)
+        disp = refine.fill_disparity(disp, labels)
+        out.update(disp_right=disp_right, labels=labels, disp_filled=disp)
+    if config.refine.subpixel:
+        disp = refine.subpixel(c_final, disp)
+        out["disp_subpixel"] = disp
+    disp = refine.median_filter(disp, config.refine.median_size)
+    out["disp_median"] = disp
+    r = config.refine
+    disp = refine.bilateral_filter(disp, left, r.bilateral_radius, r.bilateral_sigma_space,
+                                   r.bilateral_sigma_range)
+    out["disparity"] = jnp.clip(disp, 0.0, float(d - 1))
+    return out
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def disparity_grey(left: jax.Array, right: jax.Array, config: StereoConfig) -> jax.Array:
+    """Jitted chain on grey ``f32[H, W]`` images already checked by :func:`prepare_pair`."""
+    return _chain(left, right, config, keep=False)["disparity"]
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def _stages_grey(left, right, config):
+    return _chain(left, right, config, keep=True)
+
+
+def _check_params(config: StereoConfig, params) -> None:
+    if params is not None:
+        raise ConfigError(f"cost method {config.cost.method!r} is classical and takes no network "
+                          "parameters; pass params=None")
+
+
+def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None) -> np.ndarray:
+    """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
+
+    left, right: ``[H, W]`` or ``[H, W, 3]`` arrays (uint8, uint16 or float). config: a
+    :class:`StereoConfig` (default: census preset, 228 disparities). Raises
+    :class:`StereoInputError` / :class:`ConfigError` on bad input.
+    """
+    config = config or StereoConfig()
+    _check_params(config, params)
+    gl, gr = prepare_pair(left, right, config)
+    return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config))
+
+
+def stages(left: Any, right: Any, config: StereoConfig | None = None, params=None) -> dict[str, np.ndarray]:
+    """Every intermediate result of :func:`disparity` as numpy arrays.
+
+    Keys: cost, cost_cbca, cost_sgm, cost_final (``f32[H, W, D]``), disp_wta, disp_right,
+    labels (0 correct, 1 mismatch, 2 occlusion), disp_filled, disp_subpixel, disp_median,
+    disparity.
+    """
+    config = config or StereoConfig()
+    _check_params(config, params)
+    gl, gr = prepare_pair(left, right, config)
+    return {k: np.asarray(v) for k, v in _stages_grey(jnp.asarray(gl), jnp.asarray(gr), config).items()}
