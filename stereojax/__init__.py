@@ -1,0 +1,19 @@
+"""stereojax: learned (MC-CNN-style) and classical stereo matching in JAX.
+
+Public API::
+
+    import stereojax
+    disp = stereojax.disparity(left, right, config=stereojax.preset("census", max_disp=228))
+    inter = stereojax.stages(left, right)          # every intermediate result
+"""
+
+from .config import AggregationConfig, CostConfig, RefineConfig, SGMConfig, StereoConfig, preset
+from .errors import CheckpointError, ConfigError, OutputError, StereoError, StereoInputError
+from .pipeline import disparity, stages
+
+__all__ = [
+    "disparity", "stages", "preset",
+    "StereoConfig", "CostConfig", "AggregationConfig", "SGMConfig", "RefineConfig",
+    "StereoError", "StereoInputError", "ConfigError", "CheckpointError", "OutputError",
+]
+__version__ = "0.1.0"

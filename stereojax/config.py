@@ -26,11 +26,14 @@ class CostConfig:
     method: "census" (Hamming distance of census transforms) or "sad" (paper Eq. 3.1).
     census_radius: (ry, rx) half-sizes of the census window, e.g. (3, 4) is 7x9.
     sad_radius: half-size of the square SAD window.
+    border: matches that leave the image (x - d < 0): "replicate" compares with the repeated
+      first column of the other image, "worst" gives them the worst cost (see cost.py).
     """
 
     method: str = "census"
     census_radius: tuple[int, int] = (3, 4)
     sad_radius: int = 2
+    border: str = "replicate"
 
     def validate(self) -> None:
         if self.method not in COST_METHODS:
@@ -39,6 +42,8 @@ class CostConfig:
         if ry < 1 or rx < 1 or (2 * ry + 1) * (2 * rx + 1) - 1 > 96:
             raise ConfigError(
                 f"cost.census_radius must be >= 1 with at most 96 census bits, got {self.census_radius}")
+        if self.border not in ("replicate", "worst"):
+            raise ConfigError(f"cost.border must be 'replicate' or 'worst', got {self.border!r}")
         if self.sad_radius < 0:
             raise ConfigError(f"cost.sad_radius must be >= 0, got {self.sad_radius}")
 

@@ -3,8 +3,10 @@
 Every cost volume is ``f32[H, W, D]`` with values in [0, 1], lower is better, for
 disparities d = 0 .. D-1. The left-view volume compares left (y, x) with right
 (y, x - d); the right-view volume compares right (y, x) with left (y, x + d).
-Entries whose match leaves the image carry the finite sentinel ``INVALID_COST`` (the
-worst possible cost), and :func:`valid_mask` tells which they are.
+Entries whose match leaves the image (x - d < 0) are handled by ``border``:
+"replicate" compares with the right image's first column repeated (the left-padding trick
+of the KITTI SGBM baseline, so that SGM can carry disparities into the left band), "worst"
+gives them the finite sentinel ``INVALID_COST``. :func:`valid_mask` tells which they are.
 """
 
 from __future__ import annotations
@@ -82,7 +84,14 @@ def census_bits(radius: tuple[int, int]) -> int:
     return (2 * ry + 1) * (2 * rx + 1) - 1
 
 
-def census_cost(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4), view: str = "left"):
+def _apply_border(cost, max_disp, view, border):
+    if border == "replicate":
+        return cost
+    return jnp.where(valid_mask(cost.shape[1], max_disp, view)[None], cost, INVALID_COST)
+
+
+def census_cost(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4), view: str = "left",
+                border: str = "replicate"):
     """Census cost volume ``f32[H, W, D]`` in [0, 1] (fraction of differing bits) for one view.
 
     left, right: ``f32[H, W]`` grey images. Returns the volume with invalid entries set to
@@ -93,8 +102,7 @@ def census_cost(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4),
     ref, other = (cl, cr) if view == "left" else (cr, cl)
     shifted = shifted_stack(other, max_disp, view)                      # u32[H, W, D, K]
     diff = jax.lax.population_count(ref[:, :, None, :] ^ shifted).astype(jnp.float32).sum(-1)
-    cost = diff / census_bits(radius)
-    return jnp.where(valid_mask(left.shape[1], max_disp, view)[None], cost, INVALID_COST)
+    return _apply_border(diff / census_bits(radius), max_disp, view, border)
 
 
 # ---- SAD ------------------------------------------------------------------------------------
@@ -113,18 +121,18 @@ def box_mean(volume: jax.Array, radius: int) -> jax.Array:
     return total / (k * k)
 
 
-def sad_cost(left: jax.Array, right: jax.Array, max_disp: int, radius: int = 2, view: str = "left"):
+def sad_cost(left: jax.Array, right: jax.Array, max_disp: int, radius: int = 2, view: str = "left",
+             border: str = "replicate"):
     """SAD cost volume ``f32[H, W, D]`` (paper Eq. 3.1): window mean of |I_L - I_R| / 255."""
     ref, other = (left, right) if view == "left" else (right, left)
     ad = jnp.abs(ref[:, :, None] - shifted_stack(other, max_disp, view)) / 255.0
-    cost = box_mean(ad, radius)
-    return jnp.where(valid_mask(left.shape[1], max_disp, view)[None], cost, INVALID_COST)
+    return _apply_border(box_mean(ad, radius), max_disp, view, border)
 
 
 def matching_cost(left: jax.Array, right: jax.Array, max_disp: int, cfg, view: str = "left") -> jax.Array:
     """Dispatch on ``cfg.method`` (a :class:`stereojax.config.CostConfig`)."""
     if cfg.method == "census":
-        return census_cost(left, right, max_disp, cfg.census_radius, view)
+        return census_cost(left, right, max_disp, cfg.census_radius, view, cfg.border)
     if cfg.method == "sad":
-        return sad_cost(left, right, max_disp, cfg.sad_radius, view)
+        return sad_cost(left, right, max_disp, cfg.sad_radius, view, cfg.border)
     raise ValueError(f"unknown cost method {cfg.method!r}")

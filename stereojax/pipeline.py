@@ -30,18 +30,21 @@ def _as_grey(image: Any, name: str) -> np.ndarray:
         raise StereoInputError(f"{name} image must be HxW grey or HxWx3 colour, got shape {arr.shape}")
     if arr.dtype == np.bool_ or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise StereoInputError(f"{name} image must have an integer or float dtype, got {arr.dtype}")
-    if np.issubdtype(arr.dtype, np.floating):
+    is_float = np.issubdtype(arr.dtype, np.floating)
+    if is_float:
         if not np.all(np.isfinite(arr)):
             raise StereoInputError(f"{name} image contains NaN or infinite values")
-        arr = arr.astype(np.float32)
+        arr = arr.astype(np.float64)
         if arr.size and arr.max() <= 1.0:   # float images in [0, 1]
             arr = arr * 255.0
     elif arr.dtype == np.uint16:
-        arr = arr.astype(np.float32) / 257.0
+        arr = arr.astype(np.float64) / 257.0
     else:
-        arr = arr.astype(np.float32)
+        arr = arr.astype(np.float64)
     if arr.ndim == 3:
         arr = arr[..., 0] * 0.299 + arr[..., 1] * 0.587 + arr[..., 2] * 0.114
+        if not is_float:   # integer colour -> integer grey levels, as OpenCV's cvtColor
+            arr = np.round(arr)
     return np.ascontiguousarray(arr, dtype=np.float32)
 
 

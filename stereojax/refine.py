@@ -183,5 +183,7 @@ def bilateral_filter(disp: jax.Array, guide: jax.Array, radius: int, sigma_space
     spatial = jnp.exp(-(dy ** 2 + dx ** 2) / (2.0 * sigma_space ** 2)).reshape(-1, 1, 1)
     g = _windows(guide.astype(jnp.float32), radius)
     wgt = spatial * jnp.exp(-((g - guide[None]) ** 2) / (2.0 * sigma_range ** 2))
-    d = _windows(disp.astype(jnp.float32), radius)
-    return (wgt * d).sum(0) / wgt.sum(0)
+    disp = disp.astype(jnp.float32)
+    # written as a correction of the centre value, so that constant regions stay exact
+    d = _windows(disp, radius) - disp[None]
+    return disp + (wgt * d).sum(0) / wgt.sum(0)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def census_cost(left, right, max_disp, radius):
+def census_cost(left, right, max_disp, radius, border="worst"):
     ry, rx = radius
     h, w = left.shape
     pl = np.pad(left, ((ry, ry), (rx, rx)), mode="edge")
@@ -22,13 +22,13 @@ def census_cost(left, right, max_disp, radius):
     for y in range(h):
         for x in range(w):
             bl = bits(pl, left, y, x)
-            for d in range(min(max_disp, x + 1)):
-                br = bits(pr, right, y, x - d)
+            for d in range(max_disp if border == "replicate" else min(max_disp, x + 1)):
+                br = bits(pr, right, y, max(x - d, 0))
                 out[y, x, d] = np.sum(bl != br) / len(offs)
     return out
 
 
-def sad_cost(left, right, max_disp, radius):
+def sad_cost(left, right, max_disp, radius, border="worst"):
     h, w = left.shape
     pl = np.pad(left, radius, mode="edge")
     out = np.ones((h, w, max_disp), np.float32)
@@ -38,7 +38,7 @@ def sad_cost(left, right, max_disp, radius):
         ad = np.abs(pl - ps) / 255.0
         k = 2 * radius + 1
         for y in range(h):
-            for x in range(d, w):
+            for x in range(0 if border == "replicate" else d, w):
                 out[y, x, d] = ad[y:y + k, x:x + k].mean()
     return out
 

@@ -26,23 +26,25 @@ def smooth_grey():
     return np.kron(base, np.ones((3, 3), np.float32)) + rng.normal(0, 3, (12, 15)).astype(np.float32)
 
 
-def test_census_matches_reference(pair):
+@pytest.mark.parametrize("border", ["worst", "replicate"])
+def test_census_matches_reference(pair, border):
     left, right = pair
-    got = np.asarray(cost.census_cost(jnp.asarray(left), jnp.asarray(right), 5, (1, 2)))
-    np.testing.assert_allclose(got, ref.census_cost(left, right, 5, (1, 2)), atol=1e-6)
+    got = np.asarray(cost.census_cost(jnp.asarray(left), jnp.asarray(right), 5, (1, 2), border=border))
+    np.testing.assert_allclose(got, ref.census_cost(left, right, 5, (1, 2), border), atol=1e-6)
 
 
 def test_census_right_view_is_skewed_left_view(pair):
     left, right = pair
-    cl = np.asarray(cost.census_cost(jnp.asarray(left), jnp.asarray(right), 5, (1, 1), "left"))
-    cr = np.asarray(cost.census_cost(jnp.asarray(left), jnp.asarray(right), 5, (1, 1), "right"))
+    cl = np.asarray(cost.census_cost(jnp.asarray(left), jnp.asarray(right), 5, (1, 1), "left", "worst"))
+    cr = np.asarray(cost.census_cost(jnp.asarray(left), jnp.asarray(right), 5, (1, 1), "right", "worst"))
     np.testing.assert_allclose(cr, np.asarray(refine.right_cost_from_left(jnp.asarray(cl))), atol=1e-6)
 
 
-def test_sad_matches_reference(pair):
+@pytest.mark.parametrize("border", ["worst", "replicate"])
+def test_sad_matches_reference(pair, border):
     left, right = pair
-    got = np.asarray(cost.sad_cost(jnp.asarray(left), jnp.asarray(right), 4, 1))
-    np.testing.assert_allclose(got, ref.sad_cost(left, right, 4, 1), atol=1e-5)
+    got = np.asarray(cost.sad_cost(jnp.asarray(left), jnp.asarray(right), 4, 1, border=border))
+    np.testing.assert_allclose(got, ref.sad_cost(left, right, 4, 1, border), atol=1e-5)
 
 
 def test_cross_arms_match_reference(smooth_grey):
