@@ -188,8 +188,8 @@ def _from_dict(cls, data: Mapping[str, Any], prefix: str):
     for key, value in data.items():
         if key not in known:
             close = difflib.get_close_matches(key, list(known), n=1)
-            hint = f"; did you mean {prefix}{close[0]!r}?" if close else f"; valid keys: {sorted(known)}"
-            raise ConfigError(f"unknown config key {prefix}{key!r}{hint}")
+            hint = f"; did you mean '{prefix}{close[0]}'?" if close else f"; valid keys: {sorted(known)}"
+            raise ConfigError(f"unknown config key '{prefix}{key}'{hint}")
         default = getattr(cls(), key)
         sub_cls = _SUB_CONFIGS.get(key)
         if sub_cls is not None:

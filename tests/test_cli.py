@@ -1,0 +1,146 @@
+"""The stereojax command: outputs, one-line errors with exit codes, nothing half-written."""
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from stereojax.cli import main
+
+from .test_pipeline import _shifted_pair
+
+
+@pytest.fixture
+def pair_files(tmp_path):
+    left, right = _shifted_pair(4, h=48, w=80)
+    lp, rp = tmp_path / "left.png", tmp_path / "right.png"
+    cv2.imwrite(str(lp), left)
+    cv2.imwrite(str(rp), right)
+    return lp, rp
+
+
+def _run(argv, capsys):
+    code = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def test_predict_writes_disparity_depth_and_timings(pair_files, tmp_path, capsys):
+    lp, rp = pair_files
+    out = tmp_path / "out"
+    code, stdout, _ = _run(["predict", lp, rp, "--out", out, "--max-disp", 16,
+                            "--baseline", 0.54, "--focal", 721.5, "--ply"], capsys)
+    assert code == 0, stdout
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(["disparity.png", "disparity_color.png", "depth.png", "depth.npy",
+                            "points.ply", "config.json", "timings.json"])
+    disp = cv2.imread(str(out / "disparity.png"), cv2.IMREAD_UNCHANGED)
+    assert disp.dtype == np.uint16
+    # the constant shift (4 px) is recovered away from the left band
+    np.testing.assert_allclose(disp[:, 20:] / 256.0, 4.0, atol=0.5)
+    depth = np.load(out / "depth.npy")
+    np.testing.assert_allclose(depth[:, 20:], 0.54 * 721.5 / 4.0, rtol=0.15)
+    timings = json.loads((out / "timings.json").read_text())
+    assert timings["seconds"] > 0 and timings["max_disp"] == 16
+
+
+@pytest.mark.parametrize("argv_tail, code, match", [
+    (["missing.png", "RIGHT"], 2, "missing.png"),
+    (["LEFT", "RIGHT", "--max-disp", "80"], 2, "max_disp"),
+    (["LEFT", "RIGHT", "--max-disp", "0"], 3, "max_disp"),
+    (["LEFT", "RIGHT", "--baseline", "0.5"], 3, "together"),
+    (["LEFT", "SMALL"], 2, "right is"),
+    (["LEFT", "CORRUPT"], 2, "corrupt.png"),
+])
+def test_predict_bad_input_one_line_no_outputs(pair_files, tmp_path, capsys, argv_tail, code, match):
+    lp, rp = pair_files
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((20, 30), np.uint8))
+    corrupt = tmp_path / "corrupt.png"
+    corrupt.write_bytes(lp.read_bytes()[:200])
+    subst = {"LEFT": lp, "RIGHT": rp, "SMALL": small, "CORRUPT": corrupt, "missing.png": tmp_path / "missing.png"}
+    out = tmp_path / "out"
+    got, _, err = _run(["predict"] + [subst.get(a, a) for a in argv_tail] + ["--out", out], capsys)
+    assert got == code
+    assert len(err.strip().splitlines()) == 1 and match in err, err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_unwritable_output_folder(pair_files, tmp_path, capsys):
+    lp, rp = pair_files
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    code, _, err = _run(["predict", lp, rp, "--out", blocker / "sub"], capsys)
+    assert code == 5 and "cannot create output folder" in err
+
+
+def test_bad_config_file_is_reported(pair_files, tmp_path, capsys):
+    lp, rp = pair_files
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(json.dumps({"sgm": {"p_1": 0.1}}))
+    code, _, err = _run(["predict", lp, rp, "--out", tmp_path / "o", "--config", cfg], capsys)
+    assert code == 3 and "did you mean 'sgm.p1'" in err
+
+
+def _fake_kitti(root, n=2, with_gt=True):
+    for sub in ("image_2", "image_3", "disp_noc_0"):
+        (root / sub).mkdir(parents=True)
+    for i in range(n):
+        left, right = _shifted_pair(3, h=48, w=80, seed=i)
+        cv2.imwrite(str(root / "image_2" / f"{i:06d}_10.png"), left)
+        cv2.imwrite(str(root / "image_3" / f"{i:06d}_10.png"), right)
+        if with_gt:
+            gt = np.zeros(left.shape, np.uint16)
+            gt[10:40, 20:70] = 3 * 256
+            cv2.imwrite(str(root / "disp_noc_0" / f"{i:06d}_10.png"), gt)
+
+
+def test_evaluate_on_a_small_kitti_tree(tmp_path, capsys):
+    root = tmp_path / "kitti" / "training"
+    _fake_kitti(root)
+    out = tmp_path / "eval"
+    code, stdout, _ = _run(["evaluate", "--data", root, "--dataset", "kitti2015", "--max-disp", 16,
+                            "--sgbm", "--out", out], capsys)
+    assert code == 0
+    res = json.loads((out / "results.json").read_text())
+    assert [r["frame"] for r in res["frames"]] == ["000000", "000001"]
+    assert res["mean"]["pipeline"]["bad3"] == 0.0          # the shift is recovered on every GT pixel
+    assert 0 <= res["mean"]["sgbm"]["bad3"] <= 100
+    assert "| pipeline |" in stdout
+    for f in ("000000_disparity.png", "000000_error.png", "results.md"):
+        assert (out / f).exists()
+
+
+def test_evaluate_without_gt_and_empty_folder(tmp_path, capsys):
+    root = tmp_path / "nogt" / "training"
+    _fake_kitti(root, n=1, with_gt=False)
+    code, _, err = _run(["evaluate", "--data", root, "--dataset", "kitti2015", "--max-disp", 16,
+                         "--out", tmp_path / "e1"], capsys)
+    assert code == 2 and "ground truth" in err
+    (tmp_path / "empty").mkdir()
+    code, _, err = _run(["evaluate", "--data", tmp_path / "empty", "--dataset", "kitti2015",
+                         "--out", tmp_path / "e2"], capsys)
+    assert code == 2 and "no kitti2015 stereo pairs" in err and len(err.strip().splitlines()) == 1
+
+
+def test_console_script_reports_errors_without_traceback(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "stereojax.cli", "predict", str(tmp_path / "a.png"),
+                           str(tmp_path / "b.png"), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_demo_on_the_builtin_sample(tmp_path, capsys):
+    out = tmp_path / "demo"
+    code, stdout, _ = _run(["demo", "--out", out], capsys)
+    assert code == 0
+    m = json.loads((out / "metrics.json").read_text())
+    # census pipeline on Motorcycle (Middlebury 2014, quarter size): measured ~15 % > 3 px
+    assert 0 < m["bad3"] < 25, m
+    for f in ("disparity.png", "disparity_color.png", "error.png", "left.png"):
+        assert (out / f).stat().st_size > 0

@@ -1,0 +1,49 @@
+import json
+
+import pytest
+
+from stereojax import ConfigError, StereoConfig, preset
+from stereojax.config import AggregationConfig, CostConfig, RefineConfig, SGMConfig
+
+
+def test_json_round_trip_and_hashable():
+    cfg = preset("sad", max_disp=96)
+    again = StereoConfig.from_json(cfg.to_json())
+    assert again == cfg
+    assert hash(again) == hash(cfg)
+    assert isinstance(again.cost.census_radius, tuple)
+
+
+@pytest.mark.parametrize("text, match", [
+    ('{"max_dsp": 10}', "did you mean 'max_disp'"),
+    ('{"sgm": {"p22": 1.0}}', "did you mean 'sgm.p2'"),
+    ('{"sgm": {"directions": 6}}', "directions"),
+    ('{"sgm": {"p1": 0.5, "p2": 0.1}}', "p2 must be >= sgm.p1"),
+    ('{"max_disp": 2.5}', "integer"),
+    ('{"refine": {"median_size": 4}}', "odd"),
+    ('{"cost": {"method": "ssd"}}', "census"),
+    ('[1, 2]', "object"),
+    ('{"max_disp": ', "not valid JSON"),
+    ('{"refine": {"lr_check": "yes"}}', "true or false"),
+])
+def test_bad_configs_raise_config_error(text, match):
+    with pytest.raises(ConfigError, match=match):
+        StereoConfig.from_json(text)
+
+
+@pytest.mark.parametrize("sub", [
+    CostConfig(census_radius=(0, 3)), AggregationConfig(tau=0), AggregationConfig(arm_length=0),
+    SGMConfig(q1=0.5), RefineConfig(lr_tolerance=-1), RefineConfig(bilateral_sigma_space=0),
+])
+def test_sub_config_validation(sub):
+    with pytest.raises(ConfigError):
+        sub.validate()
+
+
+def test_unknown_preset():
+    with pytest.raises(ConfigError, match="unknown preset"):
+        preset("magic")
+
+
+def test_to_dict_is_json_serialisable():
+    json.dumps(StereoConfig().to_dict())
