@@ -6,7 +6,8 @@ CLI      := $(VENV)/bin/stereojax
 STAMP    := $(VENV)/.installed-stamp
 DATA     ?= ../shared/data
 DATASET  ?= kitti2015
-FRAMES   ?= 000021-000030
+# KITTI 2015 defaults to the validation split (frames 1-20 were used for tuning and training)
+FRAMES   ?= $(if $(filter kitti2015,$(DATASET)),000021-000030,all)
 METHOD   ?= census
 OUT      ?= out
 LEFT     ?=
@@ -39,9 +40,9 @@ predict: $(STAMP)  ## LEFT=... RIGHT=... [MAX_DISP=228 METHOD=census] -> $(OUT)/
 	@test -n "$(LEFT)" -a -n "$(RIGHT)" || { echo "usage: make predict LEFT=left.png RIGHT=right.png [MAX_DISP=228]" >&2; exit 2; }
 	$(CLI) predict "$(LEFT)" "$(RIGHT)" --out $(OUT)/predict --max-disp $(MAX_DISP) --method $(METHOD)
 
-evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015 FRAMES=000021-000030 METHOD=census]
-	$(CLI) evaluate --data $(DATA) --dataset $(DATASET) --frames $(FRAMES) --method $(METHOD) \
-	  --out experiments/results/evaluate_$(DATASET)_$(METHOD)
+evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015|kitti2012|middlebury FRAMES=... METHOD=census] (+ OpenCV SGBM)
+	$(CLI) evaluate --data $(DATA) --dataset $(DATASET) --frames $(FRAMES) --method $(METHOD) --sgbm \
+	  $(if $(filter middlebury,$(DATASET)),--gt occ) --out experiments/results/evaluate_$(DATASET)_$(METHOD)
 
 bench: $(STAMP)  ## time each stage on a KITTI-sized frame -> experiments/results/bench.{json,md}
 	$(PY) experiments/bench.py --out experiments/results

@@ -44,17 +44,20 @@ def shifted_stack(other: jax.Array, max_disp: int, view: str = "left") -> jax.Ar
     For view "left": out[y, x, d] = other[y, x - d]; for "right": out[y, x, d] = other[y, x + d].
     Columns outside the image repeat the border (their costs are masked later).
     """
+    return jnp.stack(_shifted_slices(other, max_disp, view), axis=2)
+
+
+def _shifted_slices(other: jax.Array, max_disp: int, view: str) -> list[jax.Array]:
+    """The D slices of :func:`shifted_stack`, each shaped like ``other``."""
     w = other.shape[1]
     pad = [(0, 0)] * other.ndim
     if view == "left":
         pad[1] = (max_disp, 0)
         padded = jnp.pad(other, pad, mode="edge")
-        slices = [padded[:, max_disp - d: max_disp - d + w] for d in range(max_disp)]
-    else:
-        pad[1] = (0, max_disp)
-        padded = jnp.pad(other, pad, mode="edge")
-        slices = [padded[:, d: d + w] for d in range(max_disp)]
-    return jnp.stack(slices, axis=2)
+        return [padded[:, max_disp - d: max_disp - d + w] for d in range(max_disp)]
+    pad[1] = (0, max_disp)
+    padded = jnp.pad(other, pad, mode="edge")
+    return [padded[:, d: d + w] for d in range(max_disp)]
 
 
 # ---- census --------------------------------------------------------------------------------
@@ -100,9 +103,15 @@ def census_cost(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4),
     cl = census_transform(left, radius)
     cr = census_transform(right, radius)
     ref, other = (cl, cr) if view == "left" else (cr, cl)
-    shifted = shifted_stack(other, max_disp, view)                      # u32[H, W, D, K]
-    diff = jax.lax.population_count(ref[:, :, None, :] ^ shifted).astype(jnp.float32).sum(-1)
-    return _apply_border(diff / census_bits(radius), max_disp, view, border)
+    scale = 1.0 / census_bits(radius)
+
+    def hamming(shifted):                                               # u32[H, W, K] -> f32[H, W]
+        return jax.lax.population_count(ref ^ shifted).astype(jnp.float32).sum(-1) * scale
+
+    # one fused [H, W] computation per disparity, written straight into the volume (building
+    # the shifted u32[H, W, D, K] stack first would cost twice the volume's memory)
+    cost = jnp.stack([hamming(s) for s in _shifted_slices(other, max_disp, view)], axis=-1)
+    return _apply_border(cost, max_disp, view, border)
 
 
 # ---- SAD ------------------------------------------------------------------------------------
@@ -125,8 +134,9 @@ def sad_cost(left: jax.Array, right: jax.Array, max_disp: int, radius: int = 2, 
              border: str = "replicate"):
     """SAD cost volume ``f32[H, W, D]`` (paper Eq. 3.1): window mean of |I_L - I_R| / 255."""
     ref, other = (left, right) if view == "left" else (right, left)
-    ad = jnp.abs(ref[:, :, None] - shifted_stack(other, max_disp, view)) / 255.0
-    return _apply_border(box_mean(ad, radius), max_disp, view, border)
+    # box mean of each disparity's [H, W] absolute difference (integral image per slice)
+    slices = [box_mean(jnp.abs(ref - s) / 255.0, radius) for s in _shifted_slices(other, max_disp, view)]
+    return _apply_border(jnp.stack(slices, axis=-1), max_disp, view, border)
 
 
 def matching_cost(left: jax.Array, right: jax.Array, max_disp: int, cfg, view: str = "left") -> jax.Array:

@@ -24,8 +24,9 @@ def right_cost_from_left(cost: jax.Array, invalid: float = 1.0) -> jax.Array:
     Entries with x + d >= W get ``invalid``. Returns ``f32[H, W, D]``.
     """
     h, w, max_disp = cost.shape
-    padded = jnp.pad(cost, ((0, 0), (0, max_disp), (0, 0)), constant_values=invalid)
-    cols = [padded[:, d: d + w, d] for d in range(max_disp)]
+    # per-disparity [H, W] slices (padding a slice, not the volume, keeps memory at one volume
+    # and lets XLA fuse the skew into a consumer such as argmin)
+    cols = [jnp.pad(cost[:, d:, d], ((0, 0), (0, d)), constant_values=invalid) for d in range(max_disp)]
     return jnp.stack(cols, axis=-1)
 
 

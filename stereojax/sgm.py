@@ -1,4 +1,4 @@
-"""Semi-global matching (Hirschmueller 2008) along 4 or 8 paths with ``lax.scan``.
+"""Semi-global matching (Hirschmueller 2008) along 4 or 8 paths with ``lax`` loops.
 
 For a path direction r, with C the matching cost ``f32[H, W, D]``:
 
@@ -7,14 +7,15 @@ For a path direction r, with C the matching cost ``f32[H, W, D]``:
                               min_k L_r(p - r, k) + P2) - min_k L_r(p - r, k)
 
 and the result is the mean of L_r over the paths (so it stays on the scale of C). A path
-starts at the image border with L_r = C. Horizontal paths scan over x with an ``[H, D]``
-carry; vertical and diagonal paths scan over y with a ``[W, D]`` carry (a diagonal path
-shifts that carry by one column per row).
+starts at the image border with L_r = C. Horizontal paths loop over x with an ``[H, D]``
+carry; vertical and diagonal paths loop over y with a ``[W, D]`` carry (a diagonal path
+shifts that carry by one column per row). Every path adds its L_r into one accumulator
+volume in place, so the whole of SGM needs about one volume of extra memory.
 
 Adaptive penalties (MC-CNN): with D1 = |I_L(p) - I_L(p - r)| and D2 = |I_R(p - d) -
 I_R(p - d - r)|, both below ``grad_threshold``: P1, P2; one above: P1/q1, P2/q1; both above:
 P1/q2, P2/q2. On diagonal paths only D1 is used. ``vertical_factor`` divides P1 on vertical
-paths.
+paths. Right-image columns left of the image (x - d < 0) repeat column 0, as the cost does.
 """
 
 from __future__ import annotations
@@ -22,12 +23,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .cost import shifted_stack
-
 _BIG = 1e9   # finite stand-in for +inf outside the disparity range
 
 
-def _path_step(prev: jax.Array, c: jax.Array, p1: jax.Array, p2: jax.Array) -> jax.Array:
+def _path_step(prev: jax.Array, c: jax.Array, p1, p2) -> jax.Array:
     """One SGM recurrence step. prev, c: ``f32[N, D]``; p1, p2 broadcast to ``[N, D]``."""
     m = prev.min(axis=-1, keepdims=True)
     big = jnp.full_like(prev[:, :1], _BIG)
@@ -38,34 +37,18 @@ def _path_step(prev: jax.Array, c: jax.Array, p1: jax.Array, p2: jax.Array) -> j
 
 
 def _penalties(cfg, big_left, big_right, p1_scale=1.0):
-    """Per-pixel (p1, p2) from boolean 'large gradient' maps (MC-CNN's rule)."""
+    """Per-pixel (p1, p2) from boolean 'large gradient' maps (MC-CNN's rule).
+
+    big_left: bool[N]; big_right: bool[N, D] or None (diagonal paths).
+    """
     p1 = cfg.p1 / p1_scale
     if not cfg.adaptive:
         return jnp.float32(p1), jnp.float32(cfg.p2)
-    n_big = big_left.astype(jnp.int32)[:, None] + big_right.astype(jnp.int32)
+    n_big = big_left.astype(jnp.int32)[:, None]
+    if big_right is not None:
+        n_big = n_big + big_right.astype(jnp.int32)
     div = jnp.where(n_big == 0, 1.0, jnp.where(n_big == 1, cfg.q1, cfg.q2)).astype(jnp.float32)
     return p1 / div, cfg.p2 / div
-
-
-def _scan(cost_t, big_left_t, big_right_t, cfg, reverse=False, carry_shift=0, p1_scale=1.0):
-    """Run one path over the leading axis of ``cost_t`` f32[T, N, D]; returns f32[T, N, D].
-
-    big_left_t: bool[T, N]; big_right_t: bool[T, N, D] (or None when not adaptive).
-    carry_shift: +1 / -1 shifts the carry one position along N per step (diagonal paths).
-    """
-    def body(prev, xs):
-        c, bl, br = xs
-        if carry_shift == 1:
-            prev = jnp.concatenate([jnp.zeros_like(prev[:1]), prev[:-1]], axis=0)
-        elif carry_shift == -1:
-            prev = jnp.concatenate([prev[1:], jnp.zeros_like(prev[:1])], axis=0)
-        p1, p2 = _penalties(cfg, bl, br, p1_scale)
-        out = _path_step(prev, c, p1, p2)
-        return out, out
-
-    init = jnp.zeros(cost_t.shape[1:], cost_t.dtype)
-    _, out = jax.lax.scan(body, init, (cost_t, big_left_t, big_right_t), reverse=reverse)
-    return out
 
 
 def _gradient_big(grey, dy, dx, threshold):
@@ -78,6 +61,63 @@ def _gradient_big(grey, dy, dx, threshold):
     return big & (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
 
 
+def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0):
+    """Add one path that moves along y (dy = +1 down, -1 up) to ``total`` f32[H, W, D].
+
+    big_left: bool[H, W]; big_right: bool[H, W] gradient map of the right image (None:
+    not used); shift: the carry moves by ``shift`` columns per row (diagonal paths).
+    """
+    h, w, max_disp = cost.shape
+    match_col = jnp.maximum(jnp.arange(w)[:, None] - jnp.arange(max_disp)[None, :], 0)   # [W, D]
+
+    def body(i, carry):
+        prev, total = carry
+        y = i if dy == 1 else h - 1 - i
+        if shift == 1:
+            prev = jnp.concatenate([jnp.zeros_like(prev[:1]), prev[:-1]], axis=0)
+        elif shift == -1:
+            prev = jnp.concatenate([prev[1:], jnp.zeros_like(prev[:1])], axis=0)
+        bl = jax.lax.dynamic_index_in_dim(big_left, y, 0, keepdims=False)
+        br = None
+        if big_right is not None:
+            br = jax.lax.dynamic_index_in_dim(big_right, y, 0, keepdims=False)[match_col]
+        p1, p2 = _penalties(cfg, bl, br, p1_scale)
+        c = jax.lax.dynamic_index_in_dim(cost, y, 0, keepdims=False)
+        out = _path_step(prev, c, p1, p2)
+        row = jax.lax.dynamic_index_in_dim(total, y, 0, keepdims=False)
+        total = jax.lax.dynamic_update_index_in_dim(total, row + out, y, 0)
+        return out, total
+
+    init = jnp.zeros((w, max_disp), cost.dtype)
+    return jax.lax.fori_loop(0, h, body, (init, total))[1]
+
+
+def _column_path(cost, total, big_left, big_right, cfg, dx):
+    """Add one horizontal path (dx = +1 left to right, -1 right to left) to ``total``."""
+    h, w, max_disp = cost.shape
+    if big_right is not None:
+        # padded[:, D + x'] = big_right[:, max(x', -D)...]: columns left of the image repeat 0
+        padded = jnp.pad(big_right, ((0, 0), (max_disp, 0)), mode="edge")
+
+    def body(i, carry):
+        prev, total = carry
+        x = i if dx == 1 else w - 1 - i
+        bl = jax.lax.dynamic_index_in_dim(big_left, x, 1, keepdims=False)
+        br = None
+        if big_right is not None:
+            # columns x - d for d = 0 .. D-1, i.e. padded columns x + D - d, reversed slice
+            br = jax.lax.dynamic_slice_in_dim(padded, x + 1, max_disp, axis=1)[:, ::-1]
+        p1, p2 = _penalties(cfg, bl, br)
+        c = jax.lax.dynamic_index_in_dim(cost, x, 1, keepdims=False)
+        out = _path_step(prev, c, p1, p2)
+        col = jax.lax.dynamic_index_in_dim(total, x, 1, keepdims=False)
+        total = jax.lax.dynamic_update_index_in_dim(total, col + out, x, 1)
+        return out, total
+
+    init = jnp.zeros((h, max_disp), cost.dtype)
+    return jax.lax.fori_loop(0, w, body, (init, total))[1]
+
+
 def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg) -> jax.Array:
     """Semi-global matching of the left-view cost ``f32[H, W, D]``; returns ``f32[H, W, D]``.
 
@@ -85,36 +125,19 @@ def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg) -> jax.Array:
     """
     if cfg.directions == 0:
         return cost
-    h, w, max_disp = cost.shape
     thr = cfg.grad_threshold
 
     def right_big(dy, dx):
-        # big_right[y, x, d] = large gradient of the right image at (y, x - d) along r
-        if not cfg.adaptive:
-            return jnp.zeros((h, w, max_disp), jnp.bool_)
-        return shifted_stack(_gradient_big(right, dy, dx, thr), max_disp, "left")
+        return _gradient_big(right, dy, dx, thr) if cfg.adaptive else None
 
-    no_right = jnp.zeros((h, w, max_disp), jnp.bool_)
     total = jnp.zeros_like(cost)
-
-    # horizontal paths: scan over x
-    cost_x = jnp.swapaxes(cost, 0, 1)                                         # [W, H, D]
-    for dx, rev in ((1, False), (-1, True)):
-        bl = jnp.swapaxes(_gradient_big(left, 0, dx, thr), 0, 1)
-        br = jnp.swapaxes(right_big(0, dx), 0, 1)
-        total = total + jnp.swapaxes(_scan(cost_x, bl, br, cfg, reverse=rev), 0, 1)
-
-    # vertical paths: scan over y
-    for dy, rev in ((1, False), (-1, True)):
-        bl = _gradient_big(left, dy, 0, thr)
-        total = total + _scan(cost, bl, right_big(dy, 0), cfg, reverse=rev,
-                              p1_scale=cfg.vertical_factor)
-
+    for dx in (1, -1):
+        total = _column_path(cost, total, _gradient_big(left, 0, dx, thr), right_big(0, dx), cfg, dx)
+    for dy in (1, -1):
+        total = _row_path(cost, total, _gradient_big(left, dy, 0, thr), right_big(dy, 0), cfg, dy,
+                          p1_scale=cfg.vertical_factor)
     if cfg.directions == 8:
         for dy, dx in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-            bl = _gradient_big(left, dy, dx, thr)
-            br = no_right
-            # scanning down (dy = 1) the predecessor of x is x - dx: shift the carry by dx;
-            # scanning up (reverse) the same holds with the path's own dx.
-            total = total + _scan(cost, bl, br, cfg, reverse=(dy == -1), carry_shift=dx)
+            # the predecessor of column x on the previous row is x - dx: shift the carry by dx
+            total = _row_path(cost, total, _gradient_big(left, dy, dx, thr), None, cfg, dy, shift=dx)
     return total / cfg.directions

@@ -109,7 +109,8 @@ def test_evaluate_on_a_small_kitti_tree(tmp_path, capsys):
     assert [r["frame"] for r in res["frames"]] == ["000000", "000001"]
     assert res["mean"]["pipeline"]["bad3"] == 0.0          # the shift is recovered on every GT pixel
     assert 0 <= res["mean"]["sgbm"]["bad3"] <= 100
-    assert "| pipeline |" in stdout
+    assert 0 <= res["mean"]["sgbm_unpadded"]["bad3"] <= 100
+    assert "| stereojax pipeline |" in stdout
     for f in ("000000_disparity.png", "000000_error.png", "results.md"):
         assert (out / f).exists()
 
