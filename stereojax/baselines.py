@@ -5,6 +5,10 @@ uniquenessRatio 10, speckle window 100 / range 2, disp12MaxDiff 1, 240 dispariti
 multiple of 16 above KITTI's 228). With ``pad=True`` both images are left-padded by the
 disparity range (border replicate) and the padding is cropped off afterwards, so that the
 left band of the image, where a right match would leave the image, also gets estimates.
+Colour input is converted to grey first: P1 = 8 * blockSize^2 and P2 = 32 * blockSize^2 are
+OpenCV's single-channel penalties (with 3 channels the costs triple and the same penalties
+are relatively three times weaker: measured 9.2 % instead of 6.2 % > 3 px on KITTI 2015
+000021-000030).
 """
 
 from __future__ import annotations
@@ -23,25 +27,30 @@ def sgbm_matcher(num_disp: int = 240, block_size: int = 5) -> "cv2.StereoSGBM":
 
 
 def _to_u8(image: np.ndarray) -> np.ndarray:
+    """uint8 grey image from grey or RGB, uint8 / uint16 / float input."""
     img = np.asarray(image)
     if img.dtype == np.uint16:
         img = (img / 257.0).round().astype(np.uint8)
     elif img.dtype != np.uint8:
         scale = 255.0 if img.max() <= 1.0 else 1.0
         img = np.clip(img * scale, 0, 255).round().astype(np.uint8)
+    if img.ndim == 3:
+        img = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2GRAY)
     return img
 
 
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, num_disp: int = 240, pad: bool = True,
                    block_size: int = 5) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV StereoSGBM disparity of a pair: (``f32[H, W]`` disparity, ``bool[H, W]`` valid)."""
+    """OpenCV StereoSGBM disparity of a pair: (``f32[H, W]`` disparity, ``bool[H, W]`` valid).
+
+    left, right: ``[H, W]`` or ``[H, W, 3]`` RGB images (converted to grey).
+    """
     matcher = sgbm_matcher(num_disp, block_size)
     nd = matcher.getNumDisparities()
     l8, r8 = _to_u8(left), _to_u8(right)
     if pad:
-        border = [(0, 0), (nd, 0)] + [(0, 0)] * (l8.ndim - 2)
-        l8 = np.pad(l8, border, mode="edge")
-        r8 = np.pad(r8, border, mode="edge")
+        l8 = np.pad(l8, [(0, 0), (nd, 0)], mode="edge")
+        r8 = np.pad(r8, [(0, 0), (nd, 0)], mode="edge")
     raw = matcher.compute(np.ascontiguousarray(l8), np.ascontiguousarray(r8))
     if pad:
         raw = raw[:, nd:]

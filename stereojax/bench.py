@@ -94,8 +94,11 @@ def stage_timings(left, right, cfg, repeats=3):
     sub, rows["sub-pixel"] = _time(jax.jit(refine.subpixel), c2, filled, repeats=repeats)
     med, rows[f"median {r.median_size}x{r.median_size}"] = _time(
         jax.jit(lambda x: refine.median_filter(x, r.median_size)), sub, repeats=repeats)
-    _, rows["bilateral"] = _time(
-        jax.jit(lambda x, g: refine.bilateral_filter(x, g, r.bilateral_radius, r.bilateral_sigma_space,
+    # timed at radius 2 (5x5) even when the preset switches it off, so the cost is visible
+    rad = r.bilateral_radius or 2
+    name = f"bilateral {2 * rad + 1}x{2 * rad + 1}" + ("" if r.bilateral_radius else " (off in this preset)")
+    _, rows[name] = _time(
+        jax.jit(lambda x, g: refine.bilateral_filter(x, g, rad, r.bilateral_sigma_space,
                                                      r.bilateral_sigma_range)), med, gl, repeats=repeats)
     return rows
 

@@ -76,14 +76,23 @@ def _run_pipeline(left, right, cfg):
     return disp, {"seconds": time.perf_counter() - t0}
 
 
-def _write_prediction(out: Path, stem: str, disp, max_disp, calib=None, image=None, ply=False):
+def _color_scale(disp, gt=None, gt_valid=None) -> float:
+    """Disparity shown as the top colour: the largest true disparity when GT is known, else
+    the 99.5th percentile of the estimate (so a few outliers do not wash out the picture)."""
+    if gt is not None and gt_valid is not None and gt_valid.any():
+        return float(gt[gt_valid].max())
+    return max(float(np.percentile(disp, 99.5)), 1.0)
+
+
+def _write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=False, color_max=None):
     """Write disparity (KITTI png + colour png) and depth files; returns the written names."""
     from .data import io
     from . import depth as depth_mod
 
     written = []
     io.write_kitti_disparity(out / f"{stem}disparity.png", disp)
-    io.write_color_disparity(out / f"{stem}disparity_color.png", disp, max_disp=max_disp)
+    io.write_color_disparity(out / f"{stem}disparity_color.png", disp,
+                             max_disp=color_max or _color_scale(disp))
     written += [f"{stem}disparity.png", f"{stem}disparity_color.png"]
     if calib is not None:
         z = depth_mod.disparity_to_depth(disp, calib.baseline, calib.focal, calib.doffs)
@@ -113,7 +122,7 @@ def cmd_predict(args) -> int:
             raise ConfigError(f"--baseline and --focal must be > 0, got {args.baseline}, {args.focal}")
         calib = Calibration(baseline=args.baseline, focal=args.focal, doffs=args.doffs)
     disp, timings = _run_pipeline(sample.left, sample.right, cfg)
-    written = _write_prediction(out, "", disp, cfg.max_disp, calib, sample.left, ply=args.ply)
+    written = _write_prediction(out, "", disp, calib, sample.left, ply=args.ply)
     write_json(out / "config.json", cfg.to_dict())
     write_json(out / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                       "max_disp": cfg.max_disp, "method": cfg.cost.method})
@@ -163,7 +172,7 @@ def cmd_evaluate(args) -> int:
     out = _check_out_dir(Path(args.out))
     frames = _parse_frames(args.frames)
     items = load_dataset(args.data, args.dataset, frames=frames, gt=args.gt)
-    per_frame, missing_gt = [], []
+    per_frame, missing_gt, compiled = [], [], set()
     methods = ["pipeline"] + (["sgbm", "sgbm_unpadded"] if args.sgbm else [])
     bar = tqdm(items, desc=f"evaluate {args.dataset}", unit="frame", file=sys.stderr)
     for frame_id, load in bar:
@@ -174,10 +183,13 @@ def cmd_evaluate(args) -> int:
         max_disp = _max_disp_for(args.dataset, sample, args.max_disp)
         cfg = _config(args, max_disp)
         row = {"frame": frame_id, "max_disp": max_disp}
+        key = (sample.left.shape[:2], cfg)
         disp, timings = _run_pipeline(sample.left, sample.right, cfg)
         row["pipeline"] = {**metrics.evaluate(disp, sample.gt, sample.gt_valid, fill=args.fill),
-                           "seconds": timings["seconds"]}
-        _write_prediction(out, f"{frame_id}_", disp, max_disp)
+                           "seconds": timings["seconds"], "compiled": key not in compiled}
+        compiled.add(key)
+        _write_prediction(out, f"{frame_id}_", disp,
+                          color_max=_color_scale(disp, sample.gt, sample.gt_valid))
         io.write_error_map(out / f"{frame_id}_error.png", disp, sample.gt, sample.gt_valid)
         if args.sgbm:
             for name, pad in (("sgbm", True), ("sgbm_unpadded", False)):
@@ -196,9 +208,9 @@ def cmd_evaluate(args) -> int:
         print(f"warning: {msg}; skipped", file=sys.stderr)
     summary = {m: metrics.mean_metrics([r[m] for r in per_frame]) for m in methods}
     for m in methods:
-        # the first frame's time includes compilation; report the warm mean separately
-        secs = [r[m]["seconds"] for r in per_frame]
-        summary[m]["seconds_warm"] = float(np.mean(secs[1:])) if len(secs) > 1 else float(secs[0])
+        # a frame of a new size (or config) includes compilation: average the others only
+        secs = [r[m]["seconds"] for r in per_frame if not r[m].get("compiled", False)]
+        summary[m]["seconds_warm"] = float(np.mean(secs)) if secs else float("nan")
     result = {"dataset": args.dataset, "gt": args.gt, "fill": args.fill, "frames": per_frame,
               "mean": summary, "config": _config(args, per_frame[0]["max_disp"]).to_dict()}
     write_json(out / "results.json", result)
@@ -213,12 +225,14 @@ def cmd_evaluate(args) -> int:
 
 def format_table(summary: dict) -> str:
     cols = ["bad2", "bad3", "bad4", "bad5", "d1", "epe", "density", "seconds_warm"]
-    head = "| method | >2 px % | >3 px % | >4 px % | >5 px % | D1 % | EPE px | density % | s/frame |"
+    head = ("| method | >2 px % | >3 px % | >4 px % | >5 px % | D1 % | EPE px | density % "
+            "| s/frame (warm) |")
     lines = [head, "|" + "---|" * (len(cols) + 1)]
     labels = {"pipeline": "stereojax pipeline", "sgbm": "OpenCV SGBM, left-padded",
               "sgbm_unpadded": "OpenCV SGBM, unpadded"}
     for name, m in summary.items():
-        lines.append(f"| {labels.get(name, name)} | " + " | ".join(f"{m[c]:.2f}" for c in cols) + " |")
+        cells = ["n/a" if np.isnan(m[c]) else f"{m[c]:.2f}" for c in cols]
+        lines.append(f"| {labels.get(name, name)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -234,7 +248,8 @@ def cmd_demo(args) -> int:
     print(f"built-in sample: {sample.name} {sample.left.shape[1]}x{sample.left.shape[0]}, "
           f"{max_disp} disparities, method {cfg.cost.method}")
     disp, timings = _run_pipeline(sample.left, sample.right, cfg)
-    written = _write_prediction(out, "", disp, max_disp, sample.calib, sample.left, ply=True)
+    written = _write_prediction(out, "", disp, sample.calib, sample.left, ply=True,
+                                color_max=_color_scale(disp, sample.gt, sample.gt_valid))
     io.write_png(out / "left.png", sample.left)
     m = metrics.evaluate(disp, sample.gt, sample.gt_valid)
     io.write_error_map(out / "error.png", disp, sample.gt, sample.gt_valid)
