@@ -10,9 +10,10 @@ Public API::
 from .config import AggregationConfig, CostConfig, RefineConfig, SGMConfig, StereoConfig, preset
 from .errors import CheckpointError, ConfigError, OutputError, StereoError, StereoInputError
 from .pipeline import disparity, stages
+from .train import load_model
 
 __all__ = [
-    "disparity", "stages", "preset",
+    "disparity", "stages", "preset", "load_model",
     "StereoConfig", "CostConfig", "AggregationConfig", "SGMConfig", "RefineConfig",
     "StereoError", "StereoInputError", "ConfigError", "CheckpointError", "OutputError",
 ]

@@ -260,6 +260,35 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_train(args) -> int:
+    from .data.datasets import load_dataset
+    from .train import TrainConfig, fit, train_preset
+
+    out = _check_out_dir(Path(args.out))
+    if args.config:
+        try:
+            cfg = TrainConfig.from_dict(json.loads(Path(args.config).read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ConfigError(f"cannot read training config {args.config}: {exc}") from None
+    else:
+        over = {k: v for k, v in (("steps", args.steps), ("seed", args.seed), ("delta", args.delta)) if v is not None}
+        cfg = train_preset(args.preset, head=args.head, loss=args.loss, **over)
+    gt = "occ" if args.dataset == "middlebury" else "noc"
+
+    def load(frames):
+        return [ld() for _, ld in load_dataset(args.data, args.dataset, _parse_frames(frames), gt=gt)]
+
+    train_samples = load(args.frames)
+    val_samples = load(args.val_frames) if args.val_frames else None
+    info = {"data": {"dataset": args.dataset, "frames": [s.name for s in train_samples],
+                     "val_frames": [s.name for s in val_samples or []]}}
+    print(f"training {cfg.net.head} head ({cfg.loss}, delta {cfg.delta}) on {len(train_samples)} "
+          f"{args.dataset} images, {cfg.steps} steps -> {out}", flush=True)
+    summary = fit(cfg, train_samples, val_samples, out, resume=args.resume, info=info)
+    print(json.dumps(summary, indent=2, default=_json_default))
+    return 0
+
+
 def cmd_bench(args) -> int:
     from .bench import run_bench
 
@@ -310,6 +339,22 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--max-disp", type=int, help="default: the sample's disparity range")
     add_method(sp)
     sp.set_defaults(func=cmd_demo)
+
+    sp = sub.add_parser("train", help="train the matching network on patch pairs (CPU)")
+    sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data)")
+    sp.add_argument("--dataset", default="kitti2015", choices=["kitti2015", "kitti2012", "middlebury"])
+    sp.add_argument("--frames", default="000001-000020", help="training frames or scenes (comma list)")
+    sp.add_argument("--val-frames", help="validation frames (patch error)")
+    sp.add_argument("--preset", default="cpu", choices=["cpu", "paper", "tiny"])
+    sp.add_argument("--head", default="downsize", choices=["downsize", "uniform", "cosine"])
+    sp.add_argument("--loss", choices=["bce", "relaxed", "hinge"], help="default: relaxed, or hinge for cosine")
+    sp.add_argument("--delta", type=float, help="margin of the relaxed loss (default 0.05)")
+    sp.add_argument("--steps", type=int)
+    sp.add_argument("--seed", type=int)
+    sp.add_argument("--config", help="JSON TrainConfig (overrides the preset options)")
+    sp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.msgpack")
+    sp.add_argument("--out", required=True)
+    sp.set_defaults(func=cmd_train)
 
     sp = sub.add_parser("bench", help="time every stage on a KITTI-sized frame (and OpenCV SGBM)")
     sp.add_argument("--out", default="experiments/results")

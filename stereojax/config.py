@@ -16,24 +16,27 @@ from typing import Any, Mapping
 
 from .errors import ConfigError
 
-COST_METHODS = ("census", "sad")
+COST_METHODS = ("census", "sad", "learned")
 
 
 @dataclass(frozen=True)
 class CostConfig:
     """Classical matching cost.
 
-    method: "census" (Hamming distance of census transforms) or "sad" (paper Eq. 3.1).
+    method: "census" (Hamming distance of census transforms), "sad" (paper Eq. 3.1) or
+      "learned" (the matching network; pass its weights as ``params``).
     census_radius: (ry, rx) half-sizes of the census window, e.g. (3, 4) is 7x9.
     sad_radius: half-size of the square SAD window.
     border: matches that leave the image (x - d < 0): "replicate" compares with the repeated
       first column of the other image, "worst" gives them the worst cost (see cost.py).
+    rows_per_tile: image rows per tile of the learned dense head (bounds its memory).
     """
 
     method: str = "census"
     census_radius: tuple[int, int] = (3, 4)
     sad_radius: int = 2
     border: str = "replicate"
+    rows_per_tile: int = 32
 
     def validate(self) -> None:
         if self.method not in COST_METHODS:
@@ -184,7 +187,8 @@ class StereoConfig:
         return replace(self, max_disp=max_disp).validate()
 
 
-def _from_dict(cls, data: Mapping[str, Any], prefix: str):
+def _from_dict(cls, data: Mapping[str, Any], prefix: str = ""):
+    """Build dataclass ``cls`` from a JSON mapping, recursing into dataclass-valued fields."""
     known = {f.name: f for f in fields(cls)}
     kwargs = {}
     for key, value in data.items():
@@ -193,11 +197,10 @@ def _from_dict(cls, data: Mapping[str, Any], prefix: str):
             hint = f"; did you mean '{prefix}{close[0]}'?" if close else f"; valid keys: {sorted(known)}"
             raise ConfigError(f"unknown config key '{prefix}{key}'{hint}")
         default = getattr(cls(), key)
-        sub_cls = _SUB_CONFIGS.get(key)
-        if sub_cls is not None:
+        if dataclasses.is_dataclass(default):
             if not isinstance(value, Mapping):
-                raise ConfigError(f"config key {prefix}{key!r} must be an object, got {value!r}")
-            kwargs[key] = _from_dict(sub_cls, value, f"{prefix}{key}.")
+                raise ConfigError(f"config key '{prefix}{key}' must be an object, got {value!r}")
+            kwargs[key] = _from_dict(type(default), value, f"{prefix}{key}.")
         else:
             kwargs[key] = _coerce(value, default, f"{prefix}{key}")
     return cls(**kwargs)
@@ -218,17 +221,17 @@ def _coerce(value: Any, default: Any, name: str) -> Any:
             raise ConfigError(f"config key {name!r} must be a number, got {value!r}")
         return float(value)
     if isinstance(default, tuple):
-        if not isinstance(value, (list, tuple)) or len(value) != len(default):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"config key {name!r} must be a list, got {value!r}")
+        if default and len(value) != len(default) and not name.endswith("widths"):
             raise ConfigError(f"config key {name!r} must be a list of {len(default)} values, got {value!r}")
-        return tuple(_coerce(v, d, name) for v, d in zip(value, default))
+        proto = default[0] if default else 0
+        return tuple(_coerce(v, proto, name) for v in value)
     if isinstance(default, str):
         if not isinstance(value, str):
             raise ConfigError(f"config key {name!r} must be a string, got {value!r}")
         return value
     return value
-
-
-_SUB_CONFIGS = {"cost": CostConfig, "cbca": AggregationConfig, "sgm": SGMConfig, "refine": RefineConfig}
 
 
 def preset(name: str, max_disp: int = 228) -> StereoConfig:

@@ -34,3 +34,9 @@ class OutputError(StereoError, OSError):
     """An output file or folder cannot be written."""
 
     exit_code = 5
+
+
+class TrainingError(StereoError):
+    """Training cannot go on (e.g. the loss became NaN); the last good checkpoint is kept."""
+
+    exit_code = 7

@@ -88,10 +88,18 @@ def _view_chain(cost, ref, other, config: StereoConfig, view: str):
     return c1, c2, c3
 
 
-def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, params=None,
+def _left_volume(left, right, config: StereoConfig, variables, net):
+    if config.cost.method == "learned":
+        from .learned_cost import learned_cost
+
+        return learned_cost(net, variables, left, right, config.max_disp, config.cost.rows_per_tile)
+    return cost_mod.matching_cost(left, right, config.max_disp, config.cost, "left")
+
+
+def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, variables=None, net=None,
            keep: bool = True) -> dict[str, jax.Array]:
     d = config.max_disp
-    vol = cost_mod.matching_cost(left, right, d, config.cost, "left")
+    vol = _left_volume(left, right, config, variables, net)
     c_cbca, c_sgm, c_final = _view_chain(vol, left, right, config, "left")
     disp_wta = refine.wta(c_final)
     out = {"disp_wta": disp_wta}
@@ -103,7 +111,11 @@ def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, params=None,
         if config.refine.right_from_left:
             c_right = refine.right_cost_from_left(c_final, cost_mod.INVALID_COST)
         else:
-            vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
+            if config.cost.method == "learned":
+                # the network's right-view cost is exactly the skewed left one: C_R(x, d) = C_L(x + d, d)
+                vol_r = refine.right_cost_from_left(vol, cost_mod.INVALID_COST)
+            else:
+                vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
             c_right = _view_chain(vol_r, right, left, config, "right")[2]
         disp_right = refine.wta(c_right)
         labels = refine.lr_check(disp, disp_right.astype(jnp.float32), d, config.refine.lr_tolerance)
@@ -121,34 +133,50 @@ def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, params=None,
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("config",))
-def disparity_grey(left: jax.Array, right: jax.Array, config: StereoConfig) -> jax.Array:
-    """Jitted chain on grey ``f32[H, W]`` images already checked by :func:`prepare_pair`."""
-    return _chain(left, right, config, keep=False)["disparity"]
+@functools.partial(jax.jit, static_argnames=("config", "net"))
+def disparity_grey(left: jax.Array, right: jax.Array, config: StereoConfig, variables=None,
+                   net=None) -> jax.Array:
+    """Jitted chain on grey ``f32[H, W]`` images already checked by :func:`prepare_pair`.
+
+    variables, net: the matching network's variables and (static) NetConfig when
+    ``config.cost.method == "learned"``; None otherwise.
+    """
+    return _chain(left, right, config, variables, net, keep=False)["disparity"]
 
 
-@functools.partial(jax.jit, static_argnames=("config",))
-def _stages_grey(left, right, config):
-    return _chain(left, right, config, keep=True)
+@functools.partial(jax.jit, static_argnames=("config", "net"))
+def _stages_grey(left, right, config, variables=None, net=None):
+    return _chain(left, right, config, variables, net, keep=True)
 
 
-def _check_params(config: StereoConfig, params) -> None:
+def _model_args(config: StereoConfig, params):
+    """(variables, net) for the jitted chain, checking params against the cost method."""
+    if config.cost.method == "learned":
+        from .learned_cost import LearnedModel
+
+        if not isinstance(params, LearnedModel):
+            raise ConfigError("cost method 'learned' needs params=LearnedModel (e.g. "
+                              "stereojax.load_model('weights.msgpack')), got "
+                              f"{type(params).__name__}")
+        return params.variables, params.net
     if params is not None:
         raise ConfigError(f"cost method {config.cost.method!r} is classical and takes no network "
                           "parameters; pass params=None")
+    return None, None
 
 
 def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None) -> np.ndarray:
     """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
 
     left, right: ``[H, W]`` or ``[H, W, 3]`` arrays (uint8, uint16 or float). config: a
-    :class:`StereoConfig` (default: census preset, 228 disparities). Raises
+    :class:`StereoConfig` (default: census preset, 228 disparities). params: a
+    :class:`~stereojax.learned_cost.LearnedModel` when ``config.cost.method == "learned"``. Raises
     :class:`StereoInputError` / :class:`ConfigError` on bad input.
     """
     config = config or StereoConfig()
-    _check_params(config, params)
+    variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config)
-    return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config))
+    return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
 
 
 def stages(left: Any, right: Any, config: StereoConfig | None = None, params=None) -> dict[str, np.ndarray]:
@@ -159,6 +187,7 @@ def stages(left: Any, right: Any, config: StereoConfig | None = None, params=Non
     disparity.
     """
     config = config or StereoConfig()
-    _check_params(config, params)
+    variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config)
-    return {k: np.asarray(v) for k, v in _stages_grey(jnp.asarray(gl), jnp.asarray(gr), config).items()}
+    out = _stages_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net)
+    return {k: np.asarray(v) for k, v in out.items()}
