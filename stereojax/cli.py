@@ -63,7 +63,26 @@ def _json_default(obj):
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
-def _run_pipeline(left, right, cfg):
+_MODELS: dict = {}
+
+
+def _model(args):
+    """The LearnedModel of ``--weights`` (loaded once per process), or None for classical costs."""
+    weights = getattr(args, "weights", None)
+    if args.method != "learned":
+        if weights:
+            raise ConfigError(f"--weights needs --method learned (got --method {args.method})")
+        return None
+    if not weights:
+        raise ConfigError("--method learned needs --weights FILE (a checkpoint from `stereojax train`)")
+    if weights not in _MODELS:
+        from .train import load_model
+
+        _MODELS[weights] = load_model(weights)
+    return _MODELS[weights]
+
+
+def _run_pipeline(left, right, cfg, model=None):
     """Run the chain; returns (disparity f32[H, W], timings dict). The first call of a shape
     and config includes compilation."""
     import jax.numpy as jnp
@@ -72,7 +91,8 @@ def _run_pipeline(left, right, cfg):
 
     t0 = time.perf_counter()
     gl, gr = pipeline.prepare_pair(left, right, cfg)
-    disp = np.asarray(pipeline.disparity_grey(jnp.asarray(gl), jnp.asarray(gr), cfg))
+    variables, net = pipeline._model_args(cfg, model)
+    disp = np.asarray(pipeline.disparity_grey(jnp.asarray(gl), jnp.asarray(gr), cfg, variables, net))
     return disp, {"seconds": time.perf_counter() - t0}
 
 
@@ -121,7 +141,7 @@ def cmd_predict(args) -> int:
         if args.baseline <= 0 or args.focal <= 0:
             raise ConfigError(f"--baseline and --focal must be > 0, got {args.baseline}, {args.focal}")
         calib = Calibration(baseline=args.baseline, focal=args.focal, doffs=args.doffs)
-    disp, timings = _run_pipeline(sample.left, sample.right, cfg)
+    disp, timings = _run_pipeline(sample.left, sample.right, cfg, _model(args))
     written = _write_prediction(out, "", disp, calib, sample.left, ply=args.ply)
     write_json(out / "config.json", cfg.to_dict())
     write_json(out / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
@@ -184,7 +204,7 @@ def cmd_evaluate(args) -> int:
         cfg = _config(args, max_disp)
         row = {"frame": frame_id, "max_disp": max_disp}
         key = (sample.left.shape[:2], cfg)
-        disp, timings = _run_pipeline(sample.left, sample.right, cfg)
+        disp, timings = _run_pipeline(sample.left, sample.right, cfg, _model(args))
         row["pipeline"] = {**metrics.evaluate(disp, sample.gt, sample.gt_valid, fill=args.fill),
                            "seconds": timings["seconds"], "compiled": key not in compiled}
         compiled.add(key)
@@ -247,7 +267,7 @@ def cmd_demo(args) -> int:
     cfg = _config(args, max_disp)
     print(f"built-in sample: {sample.name} {sample.left.shape[1]}x{sample.left.shape[0]}, "
           f"{max_disp} disparities, method {cfg.cost.method}")
-    disp, timings = _run_pipeline(sample.left, sample.right, cfg)
+    disp, timings = _run_pipeline(sample.left, sample.right, cfg, _model(args))
     written = _write_prediction(out, "", disp, sample.calib, sample.left, ply=True,
                                 color_max=_color_scale(disp, sample.gt, sample.gt_valid))
     io.write_png(out / "left.png", sample.left)
@@ -304,8 +324,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     def add_method(sp):
-        sp.add_argument("--method", default="census", choices=["census", "sad"],
-                        help="matching cost preset (default: census)")
+        sp.add_argument("--method", default="census", choices=["census", "sad", "learned"],
+                        help="matching cost preset (default: census); learned needs --weights")
+        sp.add_argument("--weights", help="network checkpoint for --method learned")
         sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides --method)")
 
     sp = sub.add_parser("predict", help="disparity (and depth) of one rectified pair")

@@ -30,6 +30,8 @@ class CostConfig:
     border: matches that leave the image (x - d < 0): "replicate" compares with the repeated
       first column of the other image, "worst" gives them the worst cost (see cost.py).
     rows_per_tile: image rows per tile of the learned dense head (bounds its memory).
+    candidates: learned dense head only: 0 = exact (every disparity); K > 0 = PRUNED mode, the
+      head runs only on the K best disparities of the census pipeline (others get cost 1).
     """
 
     method: str = "census"
@@ -37,6 +39,7 @@ class CostConfig:
     sad_radius: int = 2
     border: str = "replicate"
     rows_per_tile: int = 32
+    candidates: int = 0
 
     def validate(self) -> None:
         if self.method not in COST_METHODS:
@@ -47,6 +50,9 @@ class CostConfig:
                 f"cost.census_radius must be >= 1 with at most 96 census bits, got {self.census_radius}")
         if self.border not in ("replicate", "worst"):
             raise ConfigError(f"cost.border must be 'replicate' or 'worst', got {self.border!r}")
+        if self.rows_per_tile < 1 or self.candidates < 0:
+            raise ConfigError(f"cost.rows_per_tile must be >= 1 and cost.candidates >= 0, got "
+                              f"{self.rows_per_tile}, {self.candidates}")
         if self.sad_radius < 0:
             raise ConfigError(f"cost.sad_radius must be >= 0, got {self.sad_radius}")
 
@@ -245,6 +251,11 @@ def preset(name: str, max_disp: int = 228) -> StereoConfig:
             sgm=SGMConfig(p1=0.2, p2=3.2),
         ),
     }
+    # learned cost (1 - similarity): a first setting, not yet tuned (a KITTI frame with the full
+    # downsize head takes minutes on a 2-core CPU)
+    presets["learned"] = StereoConfig(
+        max_disp=max_disp, cost=CostConfig(method="learned"),
+        cbca=AggregationConfig(iterations_before=2), sgm=SGMConfig(p1=1.0, p2=15.0))
     if name not in presets:
         raise ConfigError(f"unknown preset {name!r}; choose one of {sorted(presets)}")
     return presets[name].validate()

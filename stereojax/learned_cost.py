@@ -100,12 +100,66 @@ def naive_dense_cost(net: NetConfig, variables, fl, fr, max_disp: int) -> jax.Ar
     return jnp.stack(cols, axis=-1)
 
 
-@functools.partial(jax.jit, static_argnames=("net", "max_disp", "rows_per_tile"))
+def pruned_dense_cost(net: NetConfig, variables, fl: jax.Array, fr: jax.Array, candidates: jax.Array,
+                      max_disp: int, rows_per_tile: int = 4, fill: float = 1.0) -> jax.Array:
+    """PRUNED MODE (not exact): the dense head only at ``candidates`` ``i32[H, W, K]``.
+
+    Every other entry of the ``f32[H, W, D]`` volume gets ``fill`` (the worst cost). With K
+    candidates per pixel this costs K / D of :func:`dense_cost`.
+    """
+    model = MatchNet(net)
+    a, b = model.apply(variables, fl, fr, method=MatchNet.project)            # [H, W, C1]
+    h, w, c1 = a.shape
+    k = candidates.shape[-1]
+    tiles = -(-h // rows_per_tile)
+    pad = tiles * rows_per_tile - h
+
+    def tiled(x):
+        return jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1)).reshape((tiles, rows_per_tile) + x.shape[1:])
+
+    def tile_cost(args):
+        at, bt, ct = args                                                     # [R, W, C1], [R, W, K]
+        cols = jnp.maximum(jnp.arange(w)[None, :, None] - ct, 0)              # [R, W, K]
+        rows = jnp.arange(rows_per_tile)[:, None, None]
+        hpre = at[:, :, None, :] + bt[rows, cols]                             # [R, W, K, C1]
+        logit = model.apply(variables, hpre, method=MatchNet.finish)          # [R, W, K]
+        vol = jnp.full((rows_per_tile, w, max_disp), fill, jnp.float32)
+        r_i = jnp.broadcast_to(rows, ct.shape)
+        x_i = jnp.broadcast_to(jnp.arange(w)[None, :, None], ct.shape)
+        return vol.at[r_i, x_i, ct].set(1.0 - jax.nn.sigmoid(logit))
+
+    vol = jax.lax.map(tile_cost, (tiled(a), tiled(b), tiled(candidates)))
+    return vol.reshape(tiles * rows_per_tile, w, max_disp)[:h]
+
+
+def census_candidates(left: jax.Array, right: jax.Array, max_disp: int, k: int) -> jax.Array:
+    """``i32[H, W, K]``: the K disparities of lowest census + CBCA + SGM cost (tuned census
+    preset), the candidate generator of the pruned mode."""
+    from . import aggregation, cost as cost_mod
+    from .config import StereoConfig
+    from .sgm import sgm
+
+    c = StereoConfig()
+    vol = cost_mod.census_cost(left, right, max_disp, c.cost.census_radius)
+    arms = aggregation.cross_arms(left, c.cbca.tau, c.cbca.arm_length)
+    vol = aggregation.cbca(vol, arms, c.cbca.iterations_before, c.cbca.arm_length)
+    vol = sgm(vol, left, right, c.sgm)
+    return jax.lax.top_k(-vol, k)[1].astype(jnp.int32)
+
+
+@functools.partial(jax.jit, static_argnames=("net", "max_disp", "rows_per_tile", "candidates"))
 def learned_cost(net: NetConfig, variables, left: jax.Array, right: jax.Array, max_disp: int,
-                 rows_per_tile: int = 32) -> jax.Array:
-    """Left-view cost volume ``f32[H, W, D]`` of grey images (0..255) ``f32[H, W]``."""
+                 rows_per_tile: int = 32, candidates: int = 0) -> jax.Array:
+    """Left-view cost volume ``f32[H, W, D]`` of grey images (0..255) ``f32[H, W]``.
+
+    candidates: 0 = exact (every disparity through the head); K > 0 = pruned mode, the dense
+    head only on the K best disparities of the census pipeline (see :func:`pruned_dense_cost`).
+    """
     fl = image_features(net, variables, normalise(left))
     fr = image_features(net, variables, normalise(right))
     if net.head == "cosine":
         return cosine_cost(fl, fr, max_disp)
+    if candidates:
+        cand = census_candidates(left, right, max_disp, min(candidates, max_disp))
+        return pruned_dense_cost(net, variables, fl, fr, cand, max_disp, max(1, rows_per_tile // 8))
     return dense_cost(net, variables, fl, fr, max_disp, rows_per_tile)

@@ -92,7 +92,8 @@ def _left_volume(left, right, config: StereoConfig, variables, net):
     if config.cost.method == "learned":
         from .learned_cost import learned_cost
 
-        return learned_cost(net, variables, left, right, config.max_disp, config.cost.rows_per_tile)
+        return learned_cost(net, variables, left, right, config.max_disp, config.cost.rows_per_tile,
+                            config.cost.candidates)
     return cost_mod.matching_cost(left, right, config.max_disp, config.cost, "left")
 
 

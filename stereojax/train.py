@@ -168,7 +168,7 @@ def train_step(state, data: PatchData, cfg: TrainConfig):
     upd, opt_state = opt.update(grads, state["opt_state"], state["params"])
     new = {"params": optax.apply_updates(state["params"], upd), "batch_stats": updates["batch_stats"],
            "opt_state": opt_state, "step": state["step"] + 1}
-    metrics = {"loss": loss, "error": _errors(cfg, s_pos, s_neg), "grad_norm": optax.global_norm(grads),
+    metrics = {"loss": loss, "error": _errors(cfg, s_pos, s_neg), "grad_norm": optax.tree.norm(grads),
                "lr": schedule(state["step"])}
     return new, metrics
 

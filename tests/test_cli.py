@@ -145,3 +145,27 @@ def test_demo_on_the_builtin_sample(tmp_path, capsys):
     assert 0 < m["bad3"] < 25, m
     for f in ("disparity.png", "disparity_color.png", "error.png", "left.png"):
         assert (out / f).stat().st_size > 0
+
+
+def test_learned_method_needs_weights(pair_files, tmp_path, capsys):
+    lp, rp = pair_files
+    code, _, err = _run(["predict", lp, rp, "--out", tmp_path / "o", "--method", "learned"], capsys)
+    assert code == 3 and "--weights" in err
+    code, _, err = _run(["predict", lp, rp, "--out", tmp_path / "o", "--method", "learned",
+                         "--weights", tmp_path / "missing.msgpack"], capsys)
+    assert code == 4 and "does not exist" in err
+
+
+def test_train_command_tiny(tmp_path, capsys):
+    root = tmp_path / "kitti" / "training"
+    _fake_kitti(root, n=2)
+    out = tmp_path / "run"
+    code, stdout, _ = _run(["train", "--data", root, "--dataset", "kitti2015", "--frames", "0-1",
+                            "--preset", "tiny", "--out", out], capsys)
+    assert code == 0, stdout
+    assert (out / "checkpoint.msgpack").exists() and (out / "train_summary.json").exists()
+    code, _, _ = _run(["predict", root / "image_2" / "000000_10.png", root / "image_3" / "000000_10.png",
+                       "--out", tmp_path / "p", "--max-disp", 8, "--method", "learned",
+                       "--weights", out / "checkpoint.msgpack"], capsys)
+    assert code == 0
+    assert (tmp_path / "p" / "disparity.png").exists()

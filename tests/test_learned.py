@@ -127,3 +127,19 @@ def test_sampler_offsets_and_interpolation():
     # sub-pixel cut is linear interpolation
     p = _cut(data.left, jnp.zeros(1, jnp.int32), jnp.array([15]), jnp.array([20.25]), 3)
     np.testing.assert_allclose(np.asarray(p[0, 1, :, 0]), [19.25 + 7.5, 20.25 + 7.5, 21.25 + 7.5], atol=1e-5)
+
+
+def test_pruned_mode_with_all_candidates_equals_exact():
+    net = TINY["downsize"]
+    v = _variables(net)
+    rng = np.random.default_rng(3)
+    fl = jnp.asarray(rng.normal(size=(6, 10, net.features)).astype(np.float32))
+    fr = jnp.asarray(rng.normal(size=(6, 10, net.features)).astype(np.float32))
+    exact = learned_cost.dense_cost(net, v, fl, fr, 5, rows_per_tile=4)
+    every = jnp.broadcast_to(jnp.arange(5, dtype=jnp.int32), (6, 10, 5))
+    pruned = learned_cost.pruned_dense_cost(net, v, fl, fr, every, 5, rows_per_tile=4)
+    np.testing.assert_allclose(np.asarray(pruned), np.asarray(exact), atol=1e-5)
+    some = every[..., :2]                                        # only d = 0, 1: the rest is fill
+    part = np.asarray(learned_cost.pruned_dense_cost(net, v, fl, fr, some, 5, rows_per_tile=4))
+    np.testing.assert_allclose(part[..., :2], np.asarray(exact)[..., :2], atol=1e-5)
+    assert np.all(part[..., 2:] == 1.0)
