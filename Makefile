@@ -14,7 +14,7 @@ LEFT     ?=
 RIGHT    ?=
 MAX_DISP ?= 228
 
-.PHONY: help install test test-fast demo predict evaluate bench clean
+.PHONY: help install test test-fast demo predict evaluate bench train clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 14
@@ -46,6 +46,10 @@ evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015|kitti2012|middlebu
 
 bench: $(STAMP)  ## time each stage on a KITTI-sized frame -> experiments/results/bench.{json,md}
 	$(PY) experiments/bench.py --out experiments/results
+
+train: $(STAMP)  ## train the downsize/relaxed model on KITTI 2015 000001-000020 (cpu preset, ~35 min) -> runs/kitti2015_downsize
+	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000020 --val-frames 000021-000030 \
+	  --preset cpu --head downsize --loss relaxed --out runs/kitti2015_downsize
 
 clean:  ## remove the virtual environment and generated outputs
 	rm -rf $(VENV) $(OUT) .pytest_cache build *.egg-info
