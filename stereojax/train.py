@@ -245,6 +245,8 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
             last_val = {"step": done, "loss": float(vl), "error": float(ve)}
             writer.add_scalar("val/loss", float(vl), done)
             writer.add_scalar("val/patch_error", float(ve), done)
+            writer.add_image("val/disparity_wta", _preview(cfg, state, val_samples[0]), done,
+                             dataformats="HWC")
         if done % cfg.checkpoint_every == 0 or done == end:
             checkpoint.save(ckpt, state, _state_config(cfg, info))
             last_good = done
@@ -256,6 +258,24 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
                "train_pixels": data.size, "val_pixels": val.size if val is not None else 0}
     write_json(out / "train_summary.json", summary)
     return summary
+
+
+def _preview(cfg: TrainConfig, state, sample, rows: int = 64, cols: int = 320, max_disp: int = 64):
+    """``u8[h, w, 3]``: winner-takes-all disparity of the raw network cost on a crop of the
+    bottom centre of a validation frame (road and cars), for TensorBoard."""
+    from .data.io import colorize_disparity
+    from .learned_cost import learned_cost
+    from .pipeline import _as_grey
+
+    h, w = sample.left.shape[:2]
+    y0, x0 = max(h - rows, 0), max((w - cols) // 2, 0)
+    crop = (slice(y0, y0 + rows), slice(x0, x0 + cols))
+    gl = jnp.asarray(_as_grey(sample.left, "left")[crop])
+    gr = jnp.asarray(_as_grey(sample.right, "right")[crop])
+    variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
+    md = min(max_disp, gl.shape[1] - 1)
+    vol = learned_cost(cfg.net, variables, gl, gr, md, 16)
+    return colorize_disparity(np.asarray(jnp.argmin(vol, -1)).astype(np.float32), md)
 
 
 def load_model(path, expect_net: NetConfig | None = None):
