@@ -20,7 +20,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import stereojax  # noqa: E402
-from stereojax.cli import write_json  # noqa: E402
+from stereojax.data.io import write_json  # noqa: E402
 from stereojax.data import load_kitti2015  # noqa: E402
 from stereojax.metrics import evaluate, mean_metrics  # noqa: E402
 

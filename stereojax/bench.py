@@ -160,7 +160,7 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, method: str 
     import cv2
     import jax
 
-    from .cli import write_json
+    from .data.io import write_json
     from .config import preset
     from .data.io import atomic_output
 

@@ -17,6 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .data.io import json_default as _json_default, write_json
 from .errors import ConfigError, OutputError, StereoError, StereoInputError
 
 DEFAULT_MAX_DISP = 228
@@ -46,21 +47,6 @@ def _check_out_dir(path: Path) -> Path:
     if not path.is_dir() or not os.access(path, os.W_OK | os.X_OK):
         raise OutputError(f"output folder {path} is not writable")
     return path
-
-
-def write_json(path: Path, data) -> None:
-    from .data.io import atomic_output
-
-    with atomic_output(path) as tmp:
-        Path(tmp).write_text(json.dumps(data, indent=2, sort_keys=True, default=_json_default) + "\n")
-
-
-def _json_default(obj):
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
 _MODELS: dict = {}

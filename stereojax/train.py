@@ -201,7 +201,7 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     from tqdm import tqdm
     from tensorboardX import SummaryWriter
 
-    from .cli import write_json
+    from .data.io import write_json
 
     cfg.validate()
     out = Path(out_dir)

@@ -461,3 +461,20 @@ def _as_mask(m, shape: tuple[int, ...], name: str) -> np.ndarray:
     if arr.shape != tuple(shape):
         raise StereoInputError(f"{name} mask must have shape {tuple(shape)}, found {arr.shape}")
     return arr.astype(bool, copy=False)
+
+
+def json_default(obj):
+    """``json.dumps`` fallback for numpy scalars and arrays."""
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def write_json(path: PathLike, data) -> None:
+    """Write ``data`` as indented JSON, atomically."""
+    import json
+
+    with atomic_output(path) as tmp:
+        Path(tmp).write_text(json.dumps(data, indent=2, sort_keys=True, default=json_default) + "\n")
