@@ -1,4 +1,4 @@
-"""Semi-global matching (Hirschmueller 2008) along 4 or 8 paths with ``lax`` loops.
+"""Semi-global matching (Hirschmueller 2008) along 4 or 8 paths with ``lax.scan``.
 
 For a path direction r, with C the matching cost ``f32[H, W, D]``:
 
@@ -10,7 +10,8 @@ and the result is the mean of L_r over the paths (so it stays on the scale of C)
 starts at the image border with L_r = C. Horizontal paths loop over x with an ``[H, D]``
 carry; vertical and diagonal paths loop over y with a ``[W, D]`` carry (a diagonal path
 shifts that carry by one column per row). Every path adds its L_r into one accumulator
-volume in place, so the whole of SGM needs about one volume of extra memory.
+volume in place (the accumulator is part of the scan carry and updated with
+``dynamic_update_slice``), so the whole of SGM needs about one volume of extra memory.
 
 Adaptive penalties (MC-CNN): with D1 = |I_L(p) - I_L(p - r)| and D2 = |I_R(p - d) -
 I_R(p - d - r)|, both below ``grad_threshold``: P1, P2; one above: P1/q1, P2/q1; both above:
@@ -70,7 +71,7 @@ def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0):
     h, w, max_disp = cost.shape
     match_col = jnp.maximum(jnp.arange(w)[:, None] - jnp.arange(max_disp)[None, :], 0)   # [W, D]
 
-    def body(i, carry):
+    def body(carry, i):
         prev, total = carry
         y = i if dy == 1 else h - 1 - i
         if shift == 1:
@@ -86,10 +87,10 @@ def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0):
         out = _path_step(prev, c, p1, p2)
         row = jax.lax.dynamic_index_in_dim(total, y, 0, keepdims=False)
         total = jax.lax.dynamic_update_index_in_dim(total, row + out, y, 0)
-        return out, total
+        return (out, total), None
 
     init = jnp.zeros((w, max_disp), cost.dtype)
-    return jax.lax.fori_loop(0, h, body, (init, total))[1]
+    return jax.lax.scan(body, (init, total), jnp.arange(h))[0][1]
 
 
 def _column_path(cost, total, big_left, big_right, cfg, dx):
@@ -99,7 +100,7 @@ def _column_path(cost, total, big_left, big_right, cfg, dx):
         # padded[:, D + x'] = big_right[:, max(x', -D)...]: columns left of the image repeat 0
         padded = jnp.pad(big_right, ((0, 0), (max_disp, 0)), mode="edge")
 
-    def body(i, carry):
+    def body(carry, i):
         prev, total = carry
         x = i if dx == 1 else w - 1 - i
         bl = jax.lax.dynamic_index_in_dim(big_left, x, 1, keepdims=False)
@@ -112,10 +113,10 @@ def _column_path(cost, total, big_left, big_right, cfg, dx):
         out = _path_step(prev, c, p1, p2)
         col = jax.lax.dynamic_index_in_dim(total, x, 1, keepdims=False)
         total = jax.lax.dynamic_update_index_in_dim(total, col + out, x, 1)
-        return out, total
+        return (out, total), None
 
     init = jnp.zeros((h, max_disp), cost.dtype)
-    return jax.lax.fori_loop(0, w, body, (init, total))[1]
+    return jax.lax.scan(body, (init, total), jnp.arange(w))[0][1]
 
 
 def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg) -> jax.Array:
