@@ -1,7 +1,7 @@
 """Disparity error of a trained network in the full chain, beside the census chain, on KITTI 2015.
 
 Command:  .venv/bin/python experiments/learned_eval.py WEIGHTS [--frames 000021,000022]
-                [--candidates 0|K] [--p1 1.0 --p2 15.0 --cbca 2] [--out experiments/results/learned_kitti2015.json]
+                [--candidates 0|K] [--p1 0.5 --p2 8.0 --cbca 2] [--out experiments/results/learned_kitti2015.json]
 Running time here (2 cores): exact mode ~4-5 min per KITTI frame (the downsize head is about
 70 TFLOP per frame), pruned mode with K candidates about K / 228 of that, census ~2 s.
 Prints per frame the > 3 px error (non-occluded GT, dense output) of both chains and the
@@ -32,8 +32,8 @@ def main():
     ap.add_argument("weights")
     ap.add_argument("--frames", default="000021,000022,000023")
     ap.add_argument("--candidates", type=int, default=0)
-    ap.add_argument("--p1", type=float, default=1.0)
-    ap.add_argument("--p2", type=float, default=15.0)
+    ap.add_argument("--p1", type=float, default=0.5)
+    ap.add_argument("--p2", type=float, default=8.0)
     ap.add_argument("--cbca", type=int, default=2)
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "learned_kitti2015.json"))
     args = ap.parse_args()

@@ -251,11 +251,11 @@ def preset(name: str, max_disp: int = 228) -> StereoConfig:
             sgm=SGMConfig(p1=0.2, p2=3.2),
         ),
     }
-    # learned cost (1 - similarity): a first setting, not yet tuned (a KITTI frame with the full
-    # downsize head takes minutes on a 2-core CPU)
+    # learned cost (1 - similarity): a preliminary setting from 4 configurations on training
+    # frames 000001 and 000003 (pruned mode, K = 32), see experiments/results/tuning.md
     presets["learned"] = StereoConfig(
         max_disp=max_disp, cost=CostConfig(method="learned"),
-        cbca=AggregationConfig(iterations_before=2), sgm=SGMConfig(p1=1.0, p2=15.0))
+        cbca=AggregationConfig(iterations_before=2), sgm=SGMConfig(p1=0.5, p2=8.0))
     if name not in presets:
         raise ConfigError(f"unknown preset {name!r}; choose one of {sorted(presets)}")
     return presets[name].validate()
