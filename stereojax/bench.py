@@ -156,6 +156,52 @@ def sgbm_timings(left, right, max_disp, repeats=3) -> dict:
     return out
 
 
+def matmul_rate(n: int = 4096, repeats: int = 3) -> float:
+    """Measured dense f32 matmul rate of this machine, GFLOP/s (n x n x n)."""
+    import jax
+    import jax.numpy as jnp
+
+    a = jnp.ones((n, n), jnp.float32)
+    f = jax.jit(lambda x, y: x @ y)
+    _, t = _time(f, a, a, repeats=repeats)
+    return 2 * n ** 3 / t["warm_s"] / 1e9
+
+
+def learned_timings(left, right, max_disp: int, repeats: int = 2, exact_disps: int = 8) -> dict:
+    """Warm times of the network cost volumes on the pair: cosine head (fresh weights), the
+    shipped downsize model in pruned mode (K = 32) and, for the exact downsize head, the time
+    of ``exact_disps`` disparities scaled to ``max_disp`` (the work is linear in D)."""
+    import jax
+    import jax.numpy as jnp
+
+    from . import pipeline
+    from .learned_cost import learned_cost
+    from .nets import init_params, net_preset
+    from .train import load_model, shipped_weights
+
+    cfg = pipeline.StereoConfig(max_disp=max_disp)
+    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
+    out = {}
+    cos = net_preset("cosine", 64)
+    _, out["cosine head cost volume"] = _time(
+        lambda a, b: learned_cost(cos, init_params(cos, jax.random.PRNGKey(0)), a, b, max_disp), gl, gr,
+        repeats=repeats)
+    model = load_model(shipped_weights("kitti2015"))
+    _, out["downsize head, pruned K=32"] = _time(
+        lambda a, b: learned_cost(model.net, model.variables, a, b, max_disp, 32, 32), gl, gr, repeats=1)
+    _, t = _time(lambda a, b: learned_cost(model.net, model.variables, a, b, exact_disps, 32, 0), gl, gr,
+                 repeats=1)
+    h, w = gl.shape
+    widths = (2 * model.net.features,) + tuple(model.net.widths) + (1,)
+    flop_per_pair = 2 * sum(a * b for a, b in zip(widths[1:-1], widths[2:]))   # layers after the split
+    scale = max_disp / exact_disps
+    out["downsize head, exact (extrapolated)"] = {"warm_s": t["warm_s"] * scale, "compile_s": t["compile_s"],
+                                                  "tflop": flop_per_pair * h * w * max_disp / 1e12}
+    out["downsize head, exact (extrapolated)"]["gflop_s"] = (
+        out["downsize head, exact (extrapolated)"]["tflop"] * 1e3 / out["downsize head, exact (extrapolated)"]["warm_s"])
+    return out
+
+
 def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, method: str = "census") -> dict:
     import cv2
     import jax
@@ -175,10 +221,14 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, method: str 
     print(f"  whole chain: {chain}", flush=True)
     sgbm = sgbm_timings(left, right, max_disp, repeats)
     print(f"  OpenCV StereoSGBM (3-way, {cv2.getNumThreads()} threads): {sgbm}", flush=True)
+    rate = matmul_rate()
+    learned = learned_timings(left, right, max_disp)
+    print(f"  dense f32 matmul: {rate:.0f} GFLOP/s; learned cost volumes: {learned}", flush=True)
     result = {"frame": src, "shape": list(left.shape[:2]), "max_disp": max_disp, "method": method,
               "cpu_cores": os.cpu_count(), "machine": platform.processor() or platform.machine(),
               "jax": jax.__version__, "backend": jax.default_backend(), "stages": stages,
-              "chain": chain, "sgbm_s": sgbm, "config": cfg.to_dict()}
+              "chain": chain, "sgbm_s": sgbm, "matmul_gflop_s": rate, "learned": learned,
+              "config": cfg.to_dict()}
     write_json(out_dir / "bench.json", result)
     lines = [f"# Benchmark: {src}, {left.shape[1]}x{left.shape[0]}, {max_disp} disparities, "
              f"{os.cpu_count()} CPU cores, jax {jax.__version__} ({jax.default_backend()})", "",
@@ -191,7 +241,13 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, method: str 
                   f"| XLA temporary buffers | {chain['xla_temp_gib']:.2f} GiB |"]
     lines += ["", "| OpenCV StereoSGBM (MODE_SGBM_3WAY, blockSize 5) | s |", "|---|---|",
               f"| left-padded by the disparity range | {sgbm['padded']:.3f} |",
-              f"| unpadded | {sgbm['unpadded']:.3f} |", ""]
+              f"| unpadded | {sgbm['unpadded']:.3f} |", "",
+              f"| learned cost volume (matmul peak here: {rate:.0f} GFLOP/s) | warm s | compile s |",
+              "|---|---|---|"]
+    lines += [f"| {k} | {v['warm_s']:.2f} | {v['compile_s']:.1f} |" for k, v in learned.items()]
+    ex = learned["downsize head, exact (extrapolated)"]
+    lines += ["", f"Exact downsize head: {ex['tflop']:.0f} TFLOP per frame at {ex['gflop_s']:.0f} GFLOP/s "
+              f"= {100 * ex['gflop_s'] / rate:.0f} % of the measured matmul rate.", ""]
     with atomic_output(out_dir / "bench.md") as tmp:
         Path(tmp).write_text("\n".join(lines))
     print(f"-> {out_dir}/bench.json, {out_dir}/bench.md")

@@ -60,7 +60,9 @@ def _model(args):
             raise ConfigError(f"--weights needs --method learned (got --method {args.method})")
         return None
     if not weights:
-        raise ConfigError("--method learned needs --weights FILE (a checkpoint from `stereojax train`)")
+        from .train import shipped_weights
+
+        weights = str(shipped_weights("kitti2015"))
     if weights not in _MODELS:
         from .train import load_model
 
@@ -311,8 +313,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add_method(sp):
         sp.add_argument("--method", default="census", choices=["census", "sad", "learned"],
-                        help="matching cost preset (default: census); learned needs --weights")
-        sp.add_argument("--weights", help="network checkpoint for --method learned")
+                        help="matching cost preset (default: census)")
+        sp.add_argument("--weights", help="network checkpoint for --method learned "
+                        "(default: the shipped KITTI 2015 model)")
         sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides --method)")
 
     sp = sub.add_parser("predict", help="disparity (and depth) of one rectified pair")

@@ -52,16 +52,26 @@ def _shift_right_features(fr: jax.Array, d) -> jax.Array:
     return jnp.take(fr, cols, axis=1)
 
 
-def cosine_cost(fl: jax.Array, fr: jax.Array, max_disp: int) -> jax.Array:
-    """``f32[H, W, D]`` cost of the cosine head from features ``f32[H, W, F]``."""
+def cosine_cost(fl: jax.Array, fr: jax.Array, max_disp: int, rows_per_batch: int = 8) -> jax.Array:
+    """``f32[H, W, D]`` cost of the cosine head from features ``f32[H, W, F]``.
+
+    Per image row, all left-right dot products are one ``[W, F] x [F, W]`` matmul, from which
+    the band x' = x - d is gathered; rows go through ``lax.map`` in small batches, so memory
+    stays at a few rows of ``[W, W]``.
+    """
     def unit(f):
         return f / jnp.sqrt((f * f).sum(-1, keepdims=True) + 1e-6)
 
     fl, fr = unit(fl), unit(fr)
     w = fr.shape[1]
-    padded = jnp.pad(fr, ((0, 0), (max_disp, 0), (0, 0)), mode="edge")
-    slices = [(fl * padded[:, max_disp - d: max_disp - d + w]).sum(-1) for d in range(max_disp)]
-    return 0.5 * (1.0 - jnp.stack(slices, axis=-1))
+    cols = jnp.maximum(jnp.arange(w)[:, None] - jnp.arange(max_disp)[None, :], 0)   # [W, D]
+
+    def row(args):
+        a, b = args                                                             # [W, F]
+        return jnp.take_along_axis(a @ b.T, cols, axis=1)                       # [W, D]
+
+    sims = jax.lax.map(row, (fl, fr), batch_size=rows_per_batch)
+    return 0.5 * (1.0 - sims)
 
 
 def dense_cost(net: NetConfig, variables, fl: jax.Array, fr: jax.Array, max_disp: int,

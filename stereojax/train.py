@@ -278,6 +278,18 @@ def _preview(cfg: TrainConfig, state, sample, rows: int = 64, cols: int = 320, m
     return colorize_disparity(np.asarray(jnp.argmin(vol, -1)).astype(np.float32), md)
 
 
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+
+
+def shipped_weights(dataset: str = "kitti2015") -> Path:
+    """Path of the pretrained weights shipped in the package for ``dataset``."""
+    path = WEIGHTS_DIR / f"{dataset}_downsize_relaxed.msgpack"
+    if not path.is_file():
+        have = sorted(p.name for p in WEIGHTS_DIR.glob("*.msgpack")) if WEIGHTS_DIR.is_dir() else []
+        raise CheckpointError(f"no shipped weights for {dataset} ({path.name}); shipped: {have or 'none'}")
+    return path
+
+
 def load_model(path, expect_net: NetConfig | None = None):
     """:class:`LearnedModel` (architecture + variables) from a checkpoint file (training
     checkpoint or shipped weights)."""

@@ -147,10 +147,8 @@ def test_demo_on_the_builtin_sample(tmp_path, capsys):
         assert (out / f).stat().st_size > 0
 
 
-def test_learned_method_needs_weights(pair_files, tmp_path, capsys):
+def test_learned_method_with_missing_weights(pair_files, tmp_path, capsys):
     lp, rp = pair_files
-    code, _, err = _run(["predict", lp, rp, "--out", tmp_path / "o", "--method", "learned"], capsys)
-    assert code == 3 and "--weights" in err
     code, _, err = _run(["predict", lp, rp, "--out", tmp_path / "o", "--method", "learned",
                          "--weights", tmp_path / "missing.msgpack"], capsys)
     assert code == 4 and "does not exist" in err
