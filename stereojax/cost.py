@@ -17,20 +17,6 @@ import jax.numpy as jnp
 INVALID_COST = 1.0
 
 
-def to_grey(image: jax.Array) -> jax.Array:
-    """``f32[H, W]`` grey levels in 0..255 from ``[H, W]`` or ``[H, W, 3]`` RGB input.
-
-    uint16 images are scaled to 0..255 by 1/257; float images are taken as given.
-    """
-    img = jnp.asarray(image)
-    if img.dtype == jnp.uint16:
-        img = img.astype(jnp.float32) / 257.0
-    img = img.astype(jnp.float32)
-    if img.ndim == 3:
-        img = img[..., 0] * 0.299 + img[..., 1] * 0.587 + img[..., 2] * 0.114
-    return img
-
-
 def valid_mask(width: int, max_disp: int, view: str = "left") -> jax.Array:
     """``bool[W, D]``: True where the match of (x, d) lies inside the other image."""
     x = jnp.arange(width)[:, None]
@@ -38,17 +24,12 @@ def valid_mask(width: int, max_disp: int, view: str = "left") -> jax.Array:
     return (x - d >= 0) if view == "left" else (x + d < width)
 
 
-def shifted_stack(other: jax.Array, max_disp: int, view: str = "left") -> jax.Array:
-    """``[H, W, D, ...]`` view of the other image at the matching column of every (x, d).
-
-    For view "left": out[y, x, d] = other[y, x - d]; for "right": out[y, x, d] = other[y, x + d].
-    Columns outside the image repeat the border (their costs are masked later).
-    """
-    return jnp.stack(_shifted_slices(other, max_disp, view), axis=2)
-
-
 def _shifted_slices(other: jax.Array, max_disp: int, view: str) -> list[jax.Array]:
-    """The D slices of :func:`shifted_stack`, each shaped like ``other``."""
+    """The other image at the matching column of every x, one slice per disparity d.
+
+    For view "left": slice d is other[:, x - d]; for "right": other[:, x + d]. Columns outside
+    the image repeat the border. Each slice is shaped like ``other``.
+    """
     w = other.shape[1]
     pad = [(0, 0)] * other.ndim
     if view == "left":
