@@ -8,7 +8,8 @@ Public API::
 """
 
 from .config import AggregationConfig, CostConfig, RefineConfig, SGMConfig, StereoConfig, preset
-from .errors import CheckpointError, ConfigError, OutputError, StereoError, StereoInputError
+from .errors import (CheckpointError, ConfigError, InputWarning, MemoryBudgetError, OutputError,
+                     StereoError, StereoInputError)
 from .pipeline import disparity, stages
 from .train import load_model
 
@@ -16,5 +17,6 @@ __all__ = [
     "disparity", "stages", "preset", "load_model",
     "StereoConfig", "CostConfig", "AggregationConfig", "SGMConfig", "RefineConfig",
     "StereoError", "StereoInputError", "ConfigError", "CheckpointError", "OutputError",
+    "MemoryBudgetError", "InputWarning",
 ]
 __version__ = "0.1.0"

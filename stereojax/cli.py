@@ -314,8 +314,22 @@ def cmd_bench(args) -> int:
 
 # ---- entry point -------------------------------------------------------------------------------
 
+class _OneLineParser(argparse.ArgumentParser):
+    """Usage errors (unknown option, ``--max-disp 1.5``) as one line on stderr, exit code 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _warning_printer(command: str):
+    """Show warnings (e.g. a colour image paired with a grey one) as one line on stderr."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"stereojax {command}: warning: {message}", file=sys.stderr)
+    return show
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="stereojax", description="Stereo matching in JAX: disparity and depth "
+    p = _OneLineParser(prog="stereojax", description="Stereo matching in JAX: disparity and depth "
                                 "from a rectified pair (census/SAD cost, CBCA, SGM, refinement).")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -387,8 +401,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    import warnings
+
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_printer(args.command)
+            return args.func(args)
     except StereoError as exc:
         print(f"stereojax {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code

@@ -36,6 +36,21 @@ class OutputError(StereoError, OSError):
     exit_code = 5
 
 
+class MemoryBudgetError(StereoError, MemoryError):
+    """The chain's cost volumes would not fit in the memory limit; refused before allocating.
+
+    The message names the estimate, the limit and where it comes from, and what to do
+    (a smaller maximum disparity, a downscaled pair, or ``STEREOJAX_MEMORY_LIMIT_GB``).
+    """
+
+    exit_code = 6
+
+
+class InputWarning(UserWarning):
+    """An input was accepted after a conversion the caller may not expect (e.g. a colour
+    image paired with a grey one: both are converted to grey)."""
+
+
 class TrainingError(StereoError):
     """Training cannot go on (e.g. the loss became NaN); the last good checkpoint is kept."""
 

@@ -21,8 +21,13 @@ from .errors import ConfigError, StereoInputError
 from .sgm import sgm
 
 
-def _as_grey(image: Any, name: str) -> np.ndarray:
-    """Validate one image and return grey ``f32[H, W]`` in 0..255 (numpy)."""
+def _as_grey(image: Any, name: str, float_scale: float | None = None) -> np.ndarray:
+    """Validate one image and return grey ``f32[H, W]`` in 0..255 (numpy).
+
+    uint8 is taken as it is, uint16 is divided by 257, float images are taken as 0..1 when
+    their maximum is <= 1 (``float_scale`` None) and as 0..255 otherwise; ``float_scale``
+    forces the factor (a pair decides it once for both images).
+    """
     arr = np.asarray(image)
     if arr.ndim == 3 and arr.shape[2] == 4:
         arr = arr[..., :3]
@@ -30,15 +35,28 @@ def _as_grey(image: Any, name: str) -> np.ndarray:
         raise StereoInputError(f"{name} image must be HxW grey or HxWx3 colour, got shape {arr.shape}")
     if arr.dtype == np.bool_ or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise StereoInputError(f"{name} image must have an integer or float dtype, got {arr.dtype}")
+    if arr.size == 0:
+        raise StereoInputError(f"{name} image is empty (shape {arr.shape})")
     is_float = np.issubdtype(arr.dtype, np.floating)
     if is_float:
-        if not np.all(np.isfinite(arr)):
-            raise StereoInputError(f"{name} image contains NaN or infinite values")
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            y, x = np.argwhere(bad)[0][:2]
+            raise StereoInputError(f"{name} image contains {int(bad.sum())} NaN or infinite value(s) "
+                                   f"(first at row {y}, column {x}); expected finite intensities")
+        lo, hi = float(arr.min()), float(arr.max())
+        if lo < 0 or hi > 255:
+            raise StereoInputError(f"{name} float image must have intensities in [0, 1] or [0, 255], "
+                                   f"found [{lo:g}, {hi:g}]")
         arr = arr.astype(np.float64)
-        if arr.size and arr.max() <= 1.0:   # float images in [0, 1]
-            arr = arr * 255.0
+        scale = float_scale if float_scale is not None else (255.0 if hi <= 1.0 else 1.0)
+        if scale != 1.0:
+            arr = arr * scale
     elif arr.dtype == np.uint16:
         arr = arr.astype(np.float64) / 257.0
+    elif arr.dtype != np.uint8 and (arr.min() < 0 or arr.max() > 255):
+        raise StereoInputError(f"{name} image of dtype {arr.dtype} must have intensities in "
+                               f"[0, 255] (or be uint16), found [{arr.min()}, {arr.max()}]")
     else:
         arr = arr.astype(np.float64)
     if arr.ndim == 3:
@@ -46,6 +64,15 @@ def _as_grey(image: Any, name: str) -> np.ndarray:
         if not is_float:   # integer colour -> integer grey levels, as OpenCV's cvtColor
             arr = np.round(arr)
     return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def _pair_float_scale(left: np.ndarray, right: np.ndarray) -> float | None:
+    """One scale for the float images of a pair: 0..1 only when every float image is."""
+    floats = [a for a in (left, right) if np.issubdtype(a.dtype, np.floating) and a.size
+              and np.all(np.isfinite(a))]
+    if not floats:
+        return None
+    return 255.0 if max(float(a.max()) for a in floats) <= 1.0 else 1.0
 
 
 def min_image_size(config: StereoConfig) -> int:
@@ -56,13 +83,34 @@ def min_image_size(config: StereoConfig) -> int:
     return max(windows)
 
 
-def prepare_pair(left: Any, right: Any, config: StereoConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Check a pair against a config; return grey ``f32[H, W]`` left and right images."""
+def _kind(arr: np.ndarray) -> str:
+    return f"{'colour' if arr.ndim == 3 else 'grey'} {arr.dtype}"
+
+
+def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=None,
+                 keep: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Check a pair against a config; return grey ``f32[H, W]`` left and right images.
+
+    A colour image paired with a grey one (or 8-bit with 16-bit/float) is accepted: both are
+    converted to grey 0..255, with an :class:`~stereojax.errors.InputWarning` saying so.
+    Before returning, the chain's peak memory is estimated (:mod:`stereojax.memory`) and a
+    frame that would not fit in ``memory_limit_gb`` (default: ``STEREOJAX_MEMORY_LIMIT_GB``,
+    else 70 % of the available memory) raises :class:`MemoryBudgetError`.
+    """
     config.validate()
-    gl, gr = _as_grey(left, "left"), _as_grey(right, "right")
+    la, ra = np.asarray(left), np.asarray(right)
+    scale = _pair_float_scale(la, ra)
+    gl, gr = _as_grey(la, "left", scale), _as_grey(ra, "right", scale)
     if gl.shape != gr.shape:
         raise StereoInputError(f"left is {gl.shape[0]}x{gl.shape[1]} but right is "
                                f"{gr.shape[0]}x{gr.shape[1]}; a rectified pair has equal sizes")
+    if (la.ndim == 3) != (ra.ndim == 3) or la.dtype != ra.dtype:
+        import warnings
+
+        from .errors import InputWarning
+
+        warnings.warn(f"left is {_kind(la)} but right is {_kind(ra)}; both converted to grey "
+                      "0..255 before matching", InputWarning, stacklevel=3)
     h, w = gl.shape
     need = min_image_size(config)
     if h < need or w < need:
@@ -70,6 +118,9 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig) -> tuple[np.ndarra
                                "configuration needs")
     if config.max_disp >= w:
         raise StereoInputError(f"max_disp must be smaller than the image width {w}, got {config.max_disp}")
+    from .memory import check_memory
+
+    check_memory(h, w, config, memory_limit_gb, keep=keep)
     return gl, gr
 
 
@@ -166,29 +217,34 @@ def _model_args(config: StereoConfig, params):
     return None, None
 
 
-def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None) -> np.ndarray:
+def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None,
+              memory_limit_gb=None) -> np.ndarray:
     """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
 
     left, right: ``[H, W]`` or ``[H, W, 3]`` arrays (uint8, uint16 or float). config: a
     :class:`StereoConfig` (default: census preset, 228 disparities). params: a
-    :class:`~stereojax.learned_cost.LearnedModel` when ``config.cost.method == "learned"``. Raises
-    :class:`StereoInputError` / :class:`ConfigError` on bad input.
+    :class:`~stereojax.learned_cost.LearnedModel` when ``config.cost.method == "learned"``.
+    memory_limit_gb: refuse frames whose estimated peak memory exceeds this many GiB
+    (default: ``STEREOJAX_MEMORY_LIMIT_GB``, else 70 % of the available memory; see
+    :mod:`stereojax.memory`). Raises :class:`StereoInputError` / :class:`ConfigError` on bad
+    input and :class:`MemoryBudgetError` before allocating a chain that would not fit.
     """
     config = config or StereoConfig()
     variables, net = _model_args(config, params)
-    gl, gr = prepare_pair(left, right, config)
+    gl, gr = prepare_pair(left, right, config, memory_limit_gb)
     return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
 
 
-def stages(left: Any, right: Any, config: StereoConfig | None = None, params=None) -> dict[str, np.ndarray]:
+def stages(left: Any, right: Any, config: StereoConfig | None = None, params=None,
+           memory_limit_gb=None) -> dict[str, np.ndarray]:
     """Every intermediate result of :func:`disparity` as numpy arrays.
 
     Keys: cost, cost_cbca, cost_sgm, cost_final (``f32[H, W, D]``), disp_wta, disp_right,
     labels (0 correct, 1 mismatch, 2 occlusion), disp_filled, disp_subpixel, disp_median,
-    disparity.
+    disparity. memory_limit_gb: as in :func:`disparity` (the estimate counts the kept volumes).
     """
     config = config or StereoConfig()
     variables, net = _model_args(config, params)
-    gl, gr = prepare_pair(left, right, config)
+    gl, gr = prepare_pair(left, right, config, memory_limit_gb, keep=True)
     out = _stages_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net)
     return {k: np.asarray(v) for k, v in out.items()}

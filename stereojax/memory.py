@@ -1,0 +1,160 @@
+"""Memory guard: refuse a frame whose cost volumes would not fit, before building them.
+
+The chain holds a few ``f32[H, W, D]`` volumes at once (cost, aggregated cost, the SGM
+accumulator, XLA temporaries). Its peak is estimated as
+
+    peak ≈ volumes × (H · W · D · 4 bytes) + fixed overhead (compilation, buffers)
+
+with ``volumes`` calibrated by measuring the peak resident set size of a fresh process
+(minus its size before the call) on a KITTI frame, 375×1242 with 228 disparities
+(0.396 GiB per volume), with jax 0.10.2 on the CPU:
+
+=======================================  ===========  ==============
+chain                                    measured     volumes + 0.4 GiB
+=======================================  ===========  ==============
+census, ``disparity()``                  2.20 GiB     4.6
+SAD, ``disparity()``                     2.44 GiB     5.2
+census, ``stages()`` (keeps 4 volumes)   3.45 GiB     7.7
+census, ``right_from_left=False``        4.07 GiB     9.3
+=======================================  ===========  ==============
+
+The factors below round these up (5.5 / +2.5 / +4 volumes, 0.5 GiB overhead), so the
+estimate of the census chain on a KITTI frame is 2.7 GiB, as the README's ``make bench``
+peak (2.74 GiB including the interpreter).
+
+The limit is, in this order: the ``limit_gb`` argument, the environment variable
+``STEREOJAX_MEMORY_LIMIT_GB`` (GiB; ``off`` disables the guard), else
+:data:`DEFAULT_SHARE` of the memory available now (``MemAvailable`` of ``/proc/meminfo``,
+capped by a cgroup limit, else ``os.sysconf``). Everything is read at call time.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+from .errors import ConfigError, MemoryBudgetError
+
+GIB = 2 ** 30
+#: f32[H, W, D] volumes alive at the peak of ``disparity()`` (census or SAD, learned alike).
+VOLUMES = 5.5
+#: extra volumes when ``stages()`` keeps every intermediate volume.
+VOLUMES_STAGES = 2.5
+#: extra volumes when the right view is aggregated on its own (``right_from_left=False``).
+VOLUMES_RIGHT_CHAIN = 4.0
+#: fixed overhead (compilation, images, small maps), bytes.
+OVERHEAD = int(0.5 * GIB)
+#: share of the available memory the chain may use when no limit is given.
+DEFAULT_SHARE = 0.70
+ENV_VAR = "STEREOJAX_MEMORY_LIMIT_GB"
+
+
+def volumes(config, keep: bool = False) -> float:
+    """Number of ``f32[H, W, D]`` volumes the chain of ``config`` holds at its peak."""
+    n = VOLUMES
+    if keep:
+        n += VOLUMES_STAGES
+    if config.refine.lr_check and not config.refine.right_from_left:
+        n += VOLUMES_RIGHT_CHAIN
+    return n
+
+
+def chain_peak_bytes(height: int, width: int, config, keep: bool = False) -> int:
+    """Estimated peak memory (bytes) of the chain on an ``height × width`` frame."""
+    return int(volumes(config, keep) * height * width * config.max_disp * 4) + OVERHEAD
+
+
+def _meminfo_available() -> int | None:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _cgroup_available() -> int | None:
+    """Room left under a cgroup v2 memory limit (containers), or None without a limit."""
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit == "max":
+            return None
+        used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
+        return max(int(limit) - used, 0)
+    except (OSError, ValueError):
+        return None
+
+
+def _sysconf_available() -> int | None:
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def available_bytes() -> int | None:
+    """Memory available to this process now (bytes), or None when it cannot be read."""
+    found = [b for b in (_meminfo_available(), _cgroup_available()) if b is not None]
+    if not found:
+        b = _sysconf_available()
+        found = [b] if b is not None else []
+    return min(found) if found else None
+
+
+def _parse_limit(value, source: str) -> float:
+    """A limit in GiB from an argument or the environment; inf means no limit."""
+    if isinstance(value, str):
+        text = value.strip().lower()
+        if text in ("off", "none", "inf", "unlimited"):
+            return math.inf
+        try:
+            value = float(text)
+        except ValueError:
+            raise ConfigError(f"{source} must be a positive number of GiB or 'off', got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value) or value <= 0:
+        raise ConfigError(f"{source} must be a positive number of GiB or 'off', got {value!r}")
+    return float(value)
+
+
+def memory_limit(limit_gb=None) -> tuple[float, str]:
+    """(limit in bytes, where it comes from); the limit is ``inf`` when the guard is off or
+    the available memory cannot be read."""
+    if limit_gb is not None:
+        gib = _parse_limit(limit_gb, "memory_limit_gb")
+        return gib * GIB, f"memory_limit_gb={limit_gb}"
+    env = os.environ.get(ENV_VAR)
+    if env not in (None, ""):
+        gib = _parse_limit(env, ENV_VAR)
+        return gib * GIB, f"{ENV_VAR}={env}"
+    avail = available_bytes()
+    if avail is None:
+        return math.inf, "available memory unknown"
+    return DEFAULT_SHARE * avail, f"{DEFAULT_SHARE:.0%} of the {avail / GIB:.1f} GiB available"
+
+
+def check_memory(height: int, width: int, config, limit_gb=None, keep: bool = False) -> int:
+    """Raise :class:`MemoryBudgetError` when the chain's estimated peak exceeds the limit;
+    return the estimate (bytes) otherwise."""
+    need = chain_peak_bytes(height, width, config, keep)
+    limit, source = memory_limit(limit_gb)
+    if need <= limit:
+        return need
+    per_disp = volumes(config, keep) * height * width * 4
+    fit_disp = int((limit - OVERHEAD) // per_disp) if limit > OVERHEAD else 0
+    # downscale factor s (both axes) so that the volumes fit with D / s disparities
+    scale = 2
+    while scale < 64 and (volumes(config, keep) * -(-height // scale) * -(-width // scale)
+                          * -(-config.max_disp // scale) * 4 + OVERHEAD) > limit:
+        scale *= 2
+    what = "stages()" if keep else f"{config.cost.method} chain"
+    hint = (f"use a smaller maximum disparity (--max-disp / max_disp; at most {fit_disp} fits)" if fit_disp >= 1
+            else "no disparity range fits at this size")
+    raise MemoryBudgetError(
+        f"a {height}x{width} frame with {config.max_disp} disparities needs about "
+        f"{need / GIB:.1f} GiB for the {what} ({volumes(config, keep):g} f32[H, W, D] volumes of "
+        f"{height * width * config.max_disp * 4 / GIB:.2f} GiB), more than the limit of "
+        f"{limit / GIB:.1f} GiB ({source}); {hint}, or downscale the pair by {scale} "
+        f"(and the disparities with it), or set {ENV_VAR} to raise the limit")
+
