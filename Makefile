@@ -13,8 +13,17 @@ OUT      ?= out
 LEFT     ?=
 RIGHT    ?=
 MAX_DISP ?= 228
+# experiments (see experiments/common.py): SGD steps per model, seeds, Delta values of the sweep
+STEPS    ?= 1000
+SEEDS    ?= 3
+SWEEP_SEEDS ?= 2
+# KITTI 2015 test frames scored in Tables 1-2 (the first N of 000021-000030; Table 4 uses all 10)
+KITTI_FRAMES ?= 5
+DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
+EXP      := $(PY) experiments
 
-.PHONY: help install test test-fast demo predict evaluate bench train clean
+.PHONY: help install test test-fast demo predict evaluate bench train train-middlebury \
+        table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 14
@@ -22,7 +31,7 @@ help:  ## list the targets
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip
-	$(VENV)/bin/pip install -q -e ".[test]"
+	$(VENV)/bin/pip install -q -e ".[test,experiments]"
 	touch $(STAMP)
 
 install: $(STAMP)  ## create .venv and install stereojax with its dependencies
@@ -50,6 +59,35 @@ bench: $(STAMP)  ## time each stage on a KITTI-sized frame -> experiments/result
 train: $(STAMP)  ## train the downsize/relaxed model on KITTI 2015 000001-000020 (cpu preset, ~35 min) -> runs/kitti2015_downsize
 	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000020 --val-frames 000021-000030 \
 	  --preset cpu --head downsize --loss relaxed --out runs/kitti2015_downsize
+
+train-middlebury: $(STAMP)  ## train the Middlebury model on six scenes, Motorcycle held out (cpu preset, 20000 steps) -> runs/middlebury_downsize
+	$(CLI) train --data $(DATA) --dataset middlebury \
+	  --frames Aloe_opencv,Cones_2003Q,Reindeer_2006H,Teddy_2003Q,Tsukuba_2001,Venus_2001 \
+	  --val-frames Motorcycle_MiddEval3Q --preset cpu --steps 20000 --head downsize --loss relaxed \
+	  --out runs/middlebury_downsize
+
+table1: $(STAMP)  ## Table 1: BCE vs relaxed loss, SEEDS seeds, four train->test columns -> experiments/results/table1.*
+	$(EXP)/table1.py --seeds $(SEEDS) --steps $(STEPS) --kitti-frames $(KITTI_FRAMES)
+
+sweep-delta: $(STAMP)  ## Table 2: sweep of Delta (DELTAS="0 0.03 ...") with a plot -> experiments/results/table2.*
+	$(EXP)/sweep_delta.py --deltas $(DELTAS) --seeds $(SWEEP_SEEDS) --steps $(STEPS) --kitti-frames $(KITTI_FRAMES)
+
+table3: $(STAMP)  ## Table 3: SGBM, census, MC-CNN-fast/accurate, proposed on KITTI 2012 -> experiments/results/table3.*
+	$(EXP)/compare.py --dataset kitti2012 --steps $(STEPS)
+
+table4: $(STAMP)  ## Table 4: the same comparison on KITTI 2015 000021-000030 -> experiments/results/table4.*
+	$(EXP)/compare.py --dataset kitti2015 --steps $(STEPS)
+
+figures: $(STAMP)  ## Figures 5-8: images, disparity, error and depth maps of KITTI frames -> experiments/results/figures/
+	$(EXP)/figures.py
+
+depth-example: $(STAMP)  ## metric depth and a point cloud from a KITTI pair with KITTI calibration
+	$(EXP)/depth_example.py
+
+report: $(STAMP)  ## collect the tables and figures into experiments/results/REPORT.md
+	$(EXP)/report.py
+
+experiments: table1 sweep-delta table3 table4 figures depth-example report  ## all of the above
 
 clean:  ## remove the virtual environment and generated outputs
 	rm -rf $(VENV) $(OUT) .pytest_cache build *.egg-info

@@ -25,15 +25,24 @@ DEFAULT_MAX_DISP = 228
 
 # ---- helpers -----------------------------------------------------------------------------------
 
-def _config(args, max_disp: int):
-    from .config import StereoConfig, preset
+def _config_file(args):
+    """The StereoConfig of ``--config`` (None without it)."""
+    from .config import StereoConfig
 
-    if getattr(args, "config", None):
-        try:
-            text = Path(args.config).read_text()
-        except OSError as exc:
-            raise ConfigError(f"cannot read config file {args.config}: {exc.strerror}") from None
-        cfg = StereoConfig.from_json(text)
+    if not getattr(args, "config", None):
+        return None
+    try:
+        text = Path(args.config).read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {args.config}: {exc.strerror}") from None
+    return StereoConfig.from_json(text)
+
+
+def _config(args, max_disp: int):
+    from .config import preset
+
+    cfg = _config_file(args)
+    if cfg is not None:
         return cfg.with_max_disp(max_disp)
     return preset(args.method, max_disp)
 
@@ -52,12 +61,33 @@ def _check_out_dir(path: Path) -> Path:
 _MODELS: dict = {}
 
 
+def _resolve_method(args, width: int, height: int, dataset: str | None = None) -> None:
+    """Turn ``--method best`` (the default) into ``learned`` with the shipped model for this
+    input (:func:`stereojax.train.weights_for_input`), or ``census`` when that model is not
+    shipped; a shipped name given to ``--weights`` (kitti2015, middlebury) becomes its path."""
+    from .train import SHIPPED, shipped_weights, weights_for_input
+
+    if getattr(args, "weights", None) in SHIPPED:
+        args.weights = str(shipped_weights(args.weights))
+    if args.method != "best":
+        return
+    from_file = _config_file(args)
+    if from_file is not None and from_file.cost.method != "learned":
+        args.method = from_file.cost.method       # a classical chain from --config
+        return
+    if getattr(args, "weights", None):
+        args.method = "learned"
+        return
+    path = weights_for_input(width, height, dataset)
+    args.method, args.weights = ("learned", str(path)) if path else ("census", None)
+
+
 def _model(args):
     """The LearnedModel of ``--weights`` (loaded once per process), or None for classical costs."""
     weights = getattr(args, "weights", None)
     if args.method != "learned":
         if weights:
-            raise ConfigError(f"--weights needs --method learned (got --method {args.method})")
+            raise ConfigError(f"--weights needs --method learned or best (got --method {args.method})")
         return None
     if not weights:
         from .train import shipped_weights
@@ -68,6 +98,12 @@ def _model(args):
 
         _MODELS[weights] = load_model(weights)
     return _MODELS[weights]
+
+
+def _describe(args) -> str:
+    if args.method == "learned":
+        return f"learned cost, weights {Path(args.weights).name if args.weights else 'kitti2015 (shipped)'}"
+    return f"{args.method} cost"
 
 
 def _run_pipeline(left, right, cfg, model=None):
@@ -121,6 +157,7 @@ def cmd_predict(args) -> int:
 
     out = _check_out_dir(Path(args.out))
     sample = load_pair(args.left, args.right)
+    _resolve_method(args, sample.left.shape[1], sample.left.shape[0])
     cfg = _config(args, args.max_disp)
     calib = None
     if (args.baseline is None) != (args.focal is None):
@@ -134,7 +171,7 @@ def cmd_predict(args) -> int:
     write_json(out / "config.json", cfg.to_dict())
     write_json(out / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                       "max_disp": cfg.max_disp, "method": cfg.cost.method})
-    print(f"disparity {disp.shape[1]}x{disp.shape[0]}, {timings['seconds']:.2f} s "
+    print(f"disparity {disp.shape[1]}x{disp.shape[0]} ({_describe(args)}), {timings['seconds']:.2f} s "
           f"-> {out} ({', '.join(written + ['config.json', 'timings.json'])})")
     return 0
 
@@ -157,29 +194,19 @@ def _parse_frames(spec: str | None):
     return frames
 
 
-def _max_disp_for(dataset: str, sample, requested: int | None) -> int:
-    if requested is not None:
-        return requested
-    if dataset.startswith("kitti"):
-        return DEFAULT_MAX_DISP
-    if sample.max_disp_hint:
-        return int(sample.max_disp_hint)
-    if sample.gt is not None and sample.gt_valid is not None and sample.gt_valid.any():
-        return int(np.ceil(sample.gt[sample.gt_valid].max() * 1.1)) + 1
-    return min(DEFAULT_MAX_DISP, sample.left.shape[1] // 3)
-
-
 def cmd_evaluate(args) -> int:
     from tqdm import tqdm
 
     from . import metrics
     from .baselines import sgbm_disparity
     from .data import io
-    from .data.datasets import load_dataset
+    from .data.datasets import load_dataset, search_range
 
     out = _check_out_dir(Path(args.out))
     frames = _parse_frames(args.frames)
     items = load_dataset(args.data, args.dataset, frames=frames, gt=args.gt)
+    _resolve_method(args, 0, 0, args.dataset)
+    print(f"method: {_describe(args)}", file=sys.stderr)
     per_frame, missing_gt, compiled = [], [], set()
     methods = ["pipeline"] + (["sgbm", "sgbm_unpadded"] if args.sgbm else [])
     bar = tqdm(items, desc=f"evaluate {args.dataset}", unit="frame", file=sys.stderr)
@@ -188,7 +215,7 @@ def cmd_evaluate(args) -> int:
         if sample.gt is None:
             missing_gt.append(frame_id)
             continue
-        max_disp = _max_disp_for(args.dataset, sample, args.max_disp)
+        max_disp = search_range(args.dataset, sample, args.max_disp)
         cfg = _config(args, max_disp)
         row = {"frame": frame_id, "max_disp": max_disp}
         key = (sample.left.shape[:2], cfg)
@@ -250,19 +277,12 @@ def cmd_demo(args) -> int:
     from .data.datasets import load_builtin_sample
 
     out = _check_out_dir(Path(args.out))
-    if args.method == "best":
-        # the project's best method for this Middlebury sample: the shipped Middlebury model
-        # when there is one, else the census chain (the KITTI model does not transfer)
-        from .train import WEIGHTS_DIR
-
-        mb = WEIGHTS_DIR / "middlebury_downsize_relaxed.msgpack"
-        args.method = "learned" if mb.is_file() else "census"
-        args.weights = str(mb) if mb.is_file() else None
     sample = load_builtin_sample()
+    _resolve_method(args, sample.left.shape[1], sample.left.shape[0], "middlebury")
     max_disp = args.max_disp or int(sample.max_disp_hint or 70)
     cfg = _config(args, max_disp)
     print(f"built-in sample: {sample.name} {sample.left.shape[1]}x{sample.left.shape[0]}, "
-          f"{max_disp} disparities, method {cfg.cost.method}")
+          f"{max_disp} disparities, {_describe(args)}")
     disp, timings = _run_pipeline(sample.left, sample.right, cfg, _model(args))
     written = _write_prediction(out, "", disp, sample.calib, sample.left, ply=True,
                                 color_max=_color_scale(disp, sample.gt, sample.gt_valid))
@@ -333,14 +353,15 @@ def build_parser() -> argparse.ArgumentParser:
                                 "from a rectified pair (census/SAD cost, CBCA, SGM, refinement).")
     sub = p.add_subparsers(dest="command", required=True)
 
-    def add_method(sp, extra=()):
-        sp.add_argument("--method", default="census", choices=["census", "sad", "learned", *extra],
-                        help="matching cost preset (default: census)" if not extra else
-                        "matching cost (default: best = the shipped model for this kind of input "
-                        "if there is one, else census)")
-        sp.add_argument("--weights", help="network checkpoint for --method learned "
-                        "(default: the shipped KITTI 2015 model)")
-        sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides --method)")
+    def add_method(sp):
+        sp.add_argument("--method", default="best", choices=["best", "learned", "census", "sad"],
+                        help="matching cost (default: best = learned with the shipped model for this "
+                        "kind of input -- KITTI-like wide frames: KITTI 2015 model, others: Middlebury "
+                        "model -- or census when that model is not shipped)")
+        sp.add_argument("--weights", help="network checkpoint for --method learned/best, or the name of "
+                        "a shipped model (kitti2015, middlebury)")
+        sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides the chain "
+                        "settings of --method; its cost.method must fit --method)")
 
     sp = sub.add_parser("predict", help="disparity (and depth) of one rectified pair")
     sp.add_argument("left")
@@ -371,8 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("demo", help="run the built-in Middlebury Motorcycle pair and print its errors")
     sp.add_argument("--out", default="out/demo")
     sp.add_argument("--max-disp", type=int, help="default: the sample's disparity range")
-    add_method(sp, extra=("best",))
-    sp.set_defaults(method="best")
+    add_method(sp)
     sp.set_defaults(func=cmd_demo)
 
     sp = sub.add_parser("train", help="train the matching network on patch pairs (CPU)")

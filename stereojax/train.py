@@ -290,6 +290,23 @@ def shipped_weights(dataset: str = "kitti2015") -> Path:
     return path
 
 
+#: data sets with a shipped model (stereojax/weights/<name>_downsize_relaxed.msgpack)
+SHIPPED = ("kitti2015", "middlebury")
+
+
+def weights_for_input(width: int, height: int, dataset: str | None = None) -> Path | None:
+    """The shipped model for an input: the data set's own when ``dataset`` is given (KITTI 2012
+    uses the KITTI 2015 model), else by shape: KITTI-like wide road frames (width >= 2.5 x
+    height, KITTI is 3.3) -> the KITTI 2015 model, other pairs -> the Middlebury model.
+    None when that model is not shipped."""
+    if dataset is not None:
+        kind = "kitti2015" if dataset.startswith("kitti") else "middlebury"
+    else:
+        kind = "kitti2015" if width >= 2.5 * height else "middlebury"
+    path = WEIGHTS_DIR / f"{kind}_downsize_relaxed.msgpack"
+    return path if path.is_file() else None
+
+
 def load_model(path, expect_net: NetConfig | None = None):
     """:class:`LearnedModel` (architecture + variables) from a checkpoint file (training
     checkpoint or shipped weights)."""

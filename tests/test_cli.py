@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from stereojax.cli import main
+from stereojax.errors import CheckpointError
 
 from .test_pipeline import _shifted_pair
 
@@ -31,7 +32,7 @@ def _run(argv, capsys):
 def test_predict_writes_disparity_depth_and_timings(pair_files, tmp_path, capsys):
     lp, rp = pair_files
     out = tmp_path / "out"
-    code, stdout, _ = _run(["predict", lp, rp, "--out", out, "--max-disp", 16,
+    code, stdout, _ = _run(["predict", lp, rp, "--out", out, "--max-disp", 16, "--method", "census",
                             "--baseline", 0.54, "--focal", 721.5, "--ply"], capsys)
     assert code == 0, stdout
     names = sorted(p.name for p in out.iterdir())
@@ -102,7 +103,7 @@ def test_evaluate_on_a_small_kitti_tree(tmp_path, capsys):
     root = tmp_path / "kitti" / "training"
     _fake_kitti(root)
     out = tmp_path / "eval"
-    code, stdout, _ = _run(["evaluate", "--data", root, "--dataset", "kitti2015", "--max-disp", 16,
+    code, stdout, _ = _run(["evaluate", "--data", root, "--dataset", "kitti2015", "--max-disp", 16, "--method", "census",
                             "--sgbm", "--out", out], capsys)
     assert code == 0
     res = json.loads((out / "results.json").read_text())
@@ -145,6 +146,43 @@ def test_demo_on_the_builtin_sample(tmp_path, capsys):
     assert 0 < m["bad3"] < 25, m
     for f in ("disparity.png", "disparity_color.png", "error.png", "left.png"):
         assert (out / f).stat().st_size > 0
+
+
+def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):
+    import argparse
+
+    from stereojax.cli import _resolve_method
+    from stereojax.train import WEIGHTS_DIR, weights_for_input
+
+    kitti = WEIGHTS_DIR / "kitti2015_downsize_relaxed.msgpack"
+    mb = WEIGHTS_DIR / "middlebury_downsize_relaxed.msgpack"
+    assert weights_for_input(1242, 375) == kitti                     # wide road frame
+    assert weights_for_input(10, 10, "kitti2012") == kitti           # by data set
+    assert weights_for_input(741, 500) == (mb if mb.is_file() else None)
+    assert weights_for_input(1242, 375, "middlebury") == (mb if mb.is_file() else None)
+
+    def resolve(**kw):
+        args = argparse.Namespace(**{"method": "best", "weights": None, "config": None, **kw})
+        _resolve_method(args, 1242, 375)
+        return args.method, args.weights
+
+    assert resolve() == ("learned", str(kitti))
+    assert resolve(method="census") == ("census", None)
+    assert resolve(weights="kitti2015") == ("learned", str(kitti))   # a shipped name
+    if mb.is_file():
+        assert resolve(weights="middlebury") == ("learned", str(mb))
+    else:
+        with pytest.raises(CheckpointError):
+            resolve(weights="middlebury")
+    cfg = tmp_path / "sad.json"
+    cfg.write_text(stereojax_preset_json("sad"))
+    assert resolve(config=str(cfg)) == ("sad", None)                 # a classical chain from --config
+
+
+def stereojax_preset_json(name):
+    from stereojax import preset
+
+    return preset(name, 16).to_json()
 
 
 def test_learned_method_with_missing_weights(pair_files, tmp_path, capsys):

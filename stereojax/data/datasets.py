@@ -425,6 +425,25 @@ def load_builtin_sample() -> StereoSample:
 
 # ---- whole data sets ---------------------------------------------------------------------------
 
+#: disparities searched on KITTI (the largest KITTI 2015 GT disparity is about 230 px at full size)
+KITTI_MAX_DISP = 228
+
+
+def search_range(dataset: str, sample: StereoSample, requested: int | None = None) -> int:
+    """Number of disparities to search for ``sample`` of ``dataset``: ``requested`` when given,
+    228 on KITTI, else the sample's hint (Middlebury ``ndisp``), else 1.1 x its largest GT
+    disparity, else a third of the image width (at most 228)."""
+    if requested is not None:
+        return int(requested)
+    if dataset.startswith("kitti"):
+        return KITTI_MAX_DISP
+    if sample.max_disp_hint:
+        return int(sample.max_disp_hint)
+    if sample.gt is not None and sample.gt_valid is not None and sample.gt_valid.any():
+        return int(np.ceil(sample.gt[sample.gt_valid].max() * 1.1)) + 1
+    return min(KITTI_MAX_DISP, sample.left.shape[1] // 3)
+
+
 _LAYOUT = {
     "kitti2015": ("image_2/ and image_3/", list_kitti2015),
     "kitti2012": ("image_0/ and image_1/ (or colored_0/ and colored_1/)", list_kitti2012),

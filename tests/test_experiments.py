@@ -1,0 +1,111 @@
+"""Every experiment script in --quick mode: it runs, writes its JSON/markdown/PNG outputs, and its
+numbers are finite and in range. Needs the real data in ../shared/data."""
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(not (DATA / "kitti2015").is_dir(), reason=f"real data not found at {DATA}")]
+
+
+@pytest.fixture(scope="module")
+def dirs(tmp_path_factory):
+    base = tmp_path_factory.mktemp("experiments")
+    return {"out": base / "results", "runs": base / "runs", "work": base / "work"}
+
+
+def run(script, dirs, *extra):
+    cmd = [sys.executable, str(ROOT / "experiments" / script), "--quick", "--data", str(DATA),
+           "--out", str(dirs["out"]), *extra]
+    if script not in ("report.py", "figures.py", "depth_example.py"):
+        cmd += ["--runs", str(dirs["runs"])]
+    if script == "report.py":
+        cmd = [sys.executable, str(ROOT / "experiments" / script), "--quick", "--results", str(dirs["out"])]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert proc.returncode == 0, f"{script} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+    return proc.stdout
+
+
+def load(dirs, stem):
+    data = json.loads((dirs["out"] / f"{stem}_quick.json").read_text())
+    md = (dirs["out"] / f"{stem}_quick.md").read_text()
+    assert data["quick"] is True and "--quick" in data["command"]
+    assert "Command:" in md
+    return data, md
+
+
+def in_range(x, lo=0.0, hi=100.0):
+    return isinstance(x, (int, float)) and math.isfinite(x) and lo <= x <= hi
+
+
+def test_table1_quick(dirs):
+    out = run("table1.py", dirs)
+    data, md = load(dirs, "table1")
+    assert len(data["cells"]) == 2 * 4          # 2 losses x 4 train->test columns
+    for cell in data["cells"].values():
+        for seed in cell:
+            assert in_range(seed["bad3"]) and in_range(seed["patch_error"]) and seed["epe"] >= 0
+    assert "relaxed cross-entropy" in md and "KITTI 2015 → KITTI 2012" in md
+    assert "> 3 px" in out
+
+
+def test_sweep_delta_quick_reuses_table1_runs(dirs):
+    runs_before = set(p.name for p in dirs["runs"].rglob("train_summary.json"))
+    run("sweep_delta.py", dirs, "--deltas", "0", "0.05", "0.1")
+    data, md = load(dirs, "table2")
+    assert [d["delta"] for d in data["deltas"]] == [0.0, 0.05, 0.1]
+    for d in data["deltas"]:
+        for s in d["seeds"]:
+            assert in_range(s["bad3"]) and in_range(s["bad2"]) and s["bad2"] >= s["bad3"]
+    summaries = list(dirs["runs"].rglob("train_summary.json"))
+    # Delta 0 and 0.05 on KITTI were trained by table1: only Delta 0.1 is new
+    assert len(summaries) == (len(runs_before) + 1 if runs_before else 3)
+    png = dirs["out"] / "figures" / "table2_delta_quick.png"
+    assert png.is_file() and png.stat().st_size > 1000
+
+
+def test_compare_quick(dirs):
+    run("compare.py", dirs, "--dataset", "kitti2015")
+    data, md = load(dirs, "table4")
+    methods = data["methods"]
+    assert set(methods) == {"sgbm", "census", "mccnn_fast", "mccnn_acrt", "proposed", "shipped"}
+    for m in methods.values():
+        assert all(in_range(m["mean"][k]) for k in ("bad2", "bad3", "bad4", "bad5"))
+        assert m["mean"]["bad2"] >= m["mean"]["bad3"] >= m["mean"]["bad4"] >= m["mean"]["bad5"]
+        assert 0 < m["seconds_warm"] < 600
+    assert "MC-CNN-fast" in md and "StereoSGBM" in md
+
+
+def test_figures_and_depth_quick(dirs):
+    import cv2
+
+    run("figures.py", dirs)
+    data, _ = load(dirs, "figures")
+    (fig,) = data["frames"]
+    img = cv2.imread(str(dirs["out"] / fig["png"]))
+    assert img is not None and img.shape[0] == 5 * 128 and img.shape[1] == 320   # five stacked panels
+    assert in_range(fig["bad3"]) and in_range(fig["overexposed_percent"])
+
+    run("depth_example.py", dirs, "--work", str(dirs["work"]))
+    data, md = load(dirs, "depth_example")
+    assert abs(data["baseline_m"] - 0.532) < 0.01 and abs(data["focal_px"] - 721.54) < 0.01
+    assert 2.0 < data["depth_median_m"] < 100.0
+    assert in_range(data["depth_rel_error_median_percent"]) and data["gt_pixels_compared"] > 100
+    ply = dirs["work"] / "points.ply"
+    assert ply.is_file() and ply.read_bytes().startswith(b"ply")
+
+
+def test_report_collects_the_quick_tables(dirs):
+    run("report.py", dirs)
+    text = (dirs["out"] / "REPORT_quick.md").read_text()
+    for title in ("Table 1", "Table 2", "Table 4", "Figures 5-8", "Depth from a KITTI pair"):
+        assert title in text
+    assert "Not run yet: `make table3`" in text     # table3 was not made in this test
