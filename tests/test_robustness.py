@@ -165,7 +165,8 @@ def test_colour_grey_mix_is_accepted_and_reported(tmp_path, capsys):
     lc, _ = _write_pair(tmp_path / "c", colour_left=True)
     code, _, err = _cli(["predict", lc, rp, "--out", tmp_path / "mix", *FAST], capsys, "colour/grey mix")
     assert code == 0
-    line = _one_line(err)
+    assert err.count("\n") == 1 and "Traceback" not in err     # one line
+    line = err.strip()
     assert "warning: left is colour uint8 but right is grey uint8; both converted to grey" in line
     code, _, _ = _cli(["predict", lp, rp, "--out", tmp_path / "grey", *FAST], capsys)
     assert code == 0
