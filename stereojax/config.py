@@ -190,7 +190,7 @@ class StereoConfig:
         return cls.from_dict(data)
 
     def with_max_disp(self, max_disp: int) -> "StereoConfig":
-        return replace(self, max_disp=max_disp).validate()
+        return replace(self, max_disp=_as_int(max_disp)).validate()
 
 
 def _from_dict(cls, data: Mapping[str, Any], prefix: str = ""):
@@ -240,9 +240,17 @@ def _coerce(value: Any, default: Any, name: str) -> Any:
     return value
 
 
+def _as_int(value):
+    """numpy integers (e.g. ``np.int64(16)``) -> int; anything else unchanged (validate() judges it)."""
+    import numbers
+
+    return int(value) if isinstance(value, numbers.Integral) and not isinstance(value, bool) else value
+
+
 def preset(name: str, max_disp: int = 228) -> StereoConfig:
     """Named pipeline settings, tuned on KITTI 2015 training frames 000001-000019 (odd), see
     experiments/results/tuning.md: "census" (the defaults of StereoConfig) and "sad"."""
+    max_disp = _as_int(max_disp)
     presets = {
         "census": StereoConfig(max_disp=max_disp),
         "sad": StereoConfig(

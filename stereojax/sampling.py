@@ -92,7 +92,10 @@ def build_patch_data(samples: Sequence, patch_size: int, cfg: SamplerConfig) -> 
         cols["d"].append(ds[ok])
     data = {k: np.concatenate(v) for k, v in cols.items()}
     if data["index"].size == 0:
-        raise StereoInputError("no ground-truth pixel leaves room for the patch offsets")
+        sizes = ", ".join(f"{s.left.shape[1]}x{s.left.shape[0]}" for s in samples[:3])
+        raise StereoInputError(f"no ground-truth pixel leaves room for a {patch_size}x{patch_size} patch and "
+                               f"offsets up to {reach:g} px (images {sizes}{', ...' if len(samples) > 3 else ''}); "
+                               "use larger images or smaller z_high / v_pos")
     return PatchData(left=jnp.asarray(np.stack(lefts)), right=jnp.asarray(np.stack(rights)),
                      index=jnp.asarray(data["index"]), y=jnp.asarray(data["y"]),
                      x=jnp.asarray(data["x"]), d=jnp.asarray(data["d"]))

@@ -212,8 +212,11 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     if resume and ckpt.exists():
         stored = checkpoint.read_config(ckpt)
         wanted = json.loads(json.dumps(cfg.to_dict()))          # tuples -> lists, as stored
-        if {k: v for k, v in stored.items() if k in wanted} != wanted:
-            raise ConfigError(f"cannot resume {ckpt}: it was made with another training config")
+        differ = sorted(k for k in wanted if stored.get(k) != wanted[k])
+        if differ:
+            shown = ", ".join(f"{k}: {stored.get(k)!r} there, {wanted[k]!r} here" for k in differ[:3])
+            raise ConfigError(f"cannot resume {ckpt}: it was made with another training config ({shown}"
+                              f"{', ...' if len(differ) > 3 else ''}); use another --out or the same settings")
         state, _ = checkpoint.load(ckpt, state, expect_net=wanted["net"])
     write_json(out / "config.json", _state_config(cfg, info))
     writer = SummaryWriter(str(out / "tb"))

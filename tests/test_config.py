@@ -47,3 +47,15 @@ def test_unknown_preset():
 
 def test_to_dict_is_json_serialisable():
     json.dumps(StereoConfig().to_dict())
+
+
+def test_numpy_integer_max_disp_is_accepted():
+    import numpy as np
+
+    from stereojax import StereoConfig, preset
+
+    cfg = preset("census", np.int64(16))
+    assert cfg.max_disp == 16 and type(cfg.max_disp) is int
+    assert StereoConfig().with_max_disp(np.int32(32)).max_disp == 32
+    with pytest.raises(ConfigError):
+        preset("census", 16.0)

@@ -236,7 +236,7 @@ def test_training_images_too_small_for_the_patch(tmp_path, capsys):
     io.write_kitti_disparity(root / "disp_noc_0" / "000000_10.png", np.full((6, 8), 2.0, np.float32))
     code, _, err = _cli(["train", "--data", root, "--frames", "0", "--preset", "tiny", "--out", tmp_path / "run"],
                         capsys, "training images smaller than the patch")
-    assert code == 2 and "no ground-truth pixel leaves room for the patch" in _one_line(err)
+    assert code == 2 and "no ground-truth pixel leaves room for a 9x9 patch" in _one_line(err)
     assert not (tmp_path / "run" / "checkpoint.msgpack").exists()
 
 
@@ -369,7 +369,7 @@ def test_resume_with_another_architecture(tmp_path, capsys):
     assert code == 0
     before = (tmp_path / "run" / "checkpoint.msgpack").read_bytes()
     code, _, err = _cli(base + ["--resume", "--head", "uniform"], capsys, "resume with another architecture")
-    assert code == 3 and "cannot resume" in _one_line(err) and "another training config" in err
+    assert code == 3 and "cannot resume" in _one_line(err) and "another training config (net:" in err
     assert (tmp_path / "run" / "checkpoint.msgpack").read_bytes() == before     # untouched
 
 
