@@ -190,6 +190,17 @@ def _state_config(cfg: TrainConfig, extra: dict | None = None) -> dict[str, Any]
     return {**cfg.to_dict(), **(extra or {})}
 
 
+def _flat(d: dict, prefix: str = "") -> dict:
+    """{"net": {"head": "x"}} -> {"net.head": "x"}"""
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
 def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None, out_dir,
         resume: bool = False, progress: bool = True, stop_after: int | None = None,
         info: dict | None = None) -> dict[str, Any]:
@@ -212,9 +223,10 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     if resume and ckpt.exists():
         stored = checkpoint.read_config(ckpt)
         wanted = json.loads(json.dumps(cfg.to_dict()))          # tuples -> lists, as stored
-        differ = sorted(k for k in wanted if stored.get(k) != wanted[k])
+        there, here = _flat(stored), _flat(wanted)
+        differ = sorted(k for k in here if there.get(k) != here[k])
         if differ:
-            shown = ", ".join(f"{k}: {stored.get(k)!r} there, {wanted[k]!r} here" for k in differ[:3])
+            shown = ", ".join(f"{k} = {there.get(k)!r} there, {here[k]!r} here" for k in differ[:3])
             raise ConfigError(f"cannot resume {ckpt}: it was made with another training config ({shown}"
                               f"{', ...' if len(differ) > 3 else ''}); use another --out or the same settings")
         state, _ = checkpoint.load(ckpt, state, expect_net=wanted["net"])

@@ -369,7 +369,7 @@ def test_resume_with_another_architecture(tmp_path, capsys):
     assert code == 0
     before = (tmp_path / "run" / "checkpoint.msgpack").read_bytes()
     code, _, err = _cli(base + ["--resume", "--head", "uniform"], capsys, "resume with another architecture")
-    assert code == 3 and "cannot resume" in _one_line(err) and "another training config (net:" in err
+    assert code == 3 and "cannot resume" in _one_line(err) and "another training config (net.head = 'downsize' there, 'uniform' here)" in err
     assert (tmp_path / "run" / "checkpoint.msgpack").read_bytes() == before     # untouched
 
 
