@@ -18,7 +18,7 @@ STEPS    ?= 1000
 SEEDS    ?= 3
 SWEEP_SEEDS ?= 2
 # KITTI 2015 test frames scored in Tables 1-2 (the first N of 000021-000030; Table 4 uses all 10)
-KITTI_FRAMES ?= 5
+KITTI_FRAMES ?= 3
 DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 

@@ -58,8 +58,9 @@ def main():
           f"{len(seeds)} seed(s), mean ± std over seeds)\n\n" + md_table(header, rows) +
           "\n\nPatch error: share of misclassified validation pairs (KITTI 2015 000021-000030, or "
           "Middlebury Motorcycle). Disparity error: > 3 px, full chain (`preset(\"learned\")`, "
-          f"pruned mode K = {setup.candidates}), KITTI 2015 non-occluded GT, KITTI 2012 and "
-          "Middlebury all-pixel GT.")
+          f"pruned mode K = {setup.candidates}), on KITTI 2015 " + ", ".join(setup.frames("test", "kitti2015"))
+          + " (non-occluded GT), KITTI 2012 000000 and Middlebury " + ", ".join(setup.frames("test", "middlebury"))
+          + " (all-pixel GT).")
     data = {"seeds": seeds, "cells": {f"{l}|{tr}|{te}": v for (l, tr, te), v in cells.items()}}
     write_outputs(setup, "table1", data, md)
 
