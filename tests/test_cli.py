@@ -10,6 +10,7 @@ import pytest
 
 from stereojax.cli import main
 from stereojax.errors import CheckpointError
+from stereojax.train import WEIGHTS_DIR as WEIGHTS
 
 from .test_pipeline import _shifted_pair
 
@@ -142,8 +143,12 @@ def test_demo_on_the_builtin_sample(tmp_path, capsys):
     code, stdout, _ = _run(["demo", "--out", out], capsys)
     assert code == 0
     m = json.loads((out / "metrics.json").read_text())
-    # census pipeline on Motorcycle (Middlebury 2014, quarter size): measured ~15 % > 3 px
-    assert 0 < m["bad3"] < 25, m
+    if (WEIGHTS / "middlebury_downsize_relaxed.msgpack").is_file():
+        # the default is the shipped Middlebury model (Motorcycle held out of its training):
+        # measured 5.34 % > 3 px, below the census chain's 6.00 % on the same pair
+        assert m["method"] == "learned" and 0 < m["bad3"] < 6.0, m
+    else:
+        assert m["method"] == "census" and 0 < m["bad3"] < 7.0, m
     for f in ("disparity.png", "disparity_color.png", "error.png", "left.png"):
         assert (out / f).stat().st_size > 0
 
