@@ -58,7 +58,7 @@ def test_table1_quick(dirs):
 
 
 def test_sweep_delta_quick_reuses_table1_runs(dirs):
-    runs_before = set(p.name for p in dirs["runs"].rglob("train_summary.json"))
+    runs_before = {p.parent.name for p in dirs["runs"].rglob("train_summary.json")}
     run("sweep_delta.py", dirs, "--deltas", "0", "0.05", "0.1")
     data, md = load(dirs, "table2")
     assert [d["delta"] for d in data["deltas"]] == [0.0, 0.05, 0.1]
