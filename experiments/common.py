@@ -213,6 +213,16 @@ def _load(data: str, dataset: str, frame: str, gt: str):
     return items[0][1]()
 
 
+def shrink(rgb: np.ndarray, scale: float) -> np.ndarray:
+    """Area-averaged downscale of a panel (scale >= 1: unchanged)."""
+    import cv2
+
+    if scale >= 1:
+        return rgb
+    h, w = rgb.shape[:2]
+    return cv2.resize(rgb, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+
+
 def _crop(s, rows: int, cols: int):
     """Bottom-centre crop of a sample (images and GT alike)."""
     h, w = s.left.shape[:2]

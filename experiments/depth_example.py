@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import QUICK_CROP, ROOT, Setup, _crop, add_common_args, md_table, write_outputs
+from common import QUICK_CROP, ROOT, Setup, _crop, add_common_args, md_table, shrink, write_outputs
 
 import stereojax
 from stereojax.data import load_kitti2015
@@ -73,7 +73,8 @@ def main():
     figs.mkdir(parents=True, exist_ok=True)
     name = "depth_example" + ("_quick" if setup.quick else "") + ".png"
     zc = np.nan_to_num(np.clip(z, 0, 80), nan=80.0, posinf=80.0)
-    write_png(figs / name, np.concatenate([np.asarray(s.left, np.uint8), colorize_disparity(80 - zc, 80)], 0))
+    panel = np.concatenate([np.asarray(s.left, np.uint8), colorize_disparity(80 - zc, 80)], 0)
+    write_png(figs / name, shrink(panel, 0.5))
     md = (f"# Depth from a KITTI pair (frame {args.frame}, {method})\n\n"
           f"Calibration read from `calib_cam_to_cam/{args.frame}.txt` (KITTI format, representative "
           f"values): f = {calib.focal:.2f} px, B = {calib.baseline:.4f} m, so Z = {calib.baseline * calib.focal:.1f} / d m.\n\n"

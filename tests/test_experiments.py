@@ -91,7 +91,7 @@ def test_figures_and_depth_quick(dirs):
     data, _ = load(dirs, "figures")
     (fig,) = data["frames"]
     img = cv2.imread(str(dirs["out"] / fig["png"]))
-    assert img is not None and img.shape[0] == 5 * 128 and img.shape[1] == 320   # five stacked panels
+    assert img is not None and img.shape[:2] == (5 * 64, 160)   # five stacked 128x320 panels at half size
     assert in_range(fig["bad3"]) and in_range(fig["overexposed_percent"])
 
     run("depth_example.py", dirs, "--work", str(dirs["work"]))
