@@ -11,9 +11,9 @@ model (the `cpu` preset: 50 000 steps) in the same chain and pruning.
 Command:  make table3   (= .venv/bin/python experiments/compare.py --dataset kitti2012)
           make table4   (= .venv/bin/python experiments/compare.py --dataset kitti2015)
           .venv/bin/python experiments/compare.py --dataset kitti2015 --quick   (smoke test)
-Running time here (2 cores): training the cosine and uniform models about 3 min each (cached and
-shared by both tables), then per KITTI frame about 0.1 s (SGBM), 3 s (census), 5 s (cosine) and
-15-60 s (dense heads in pruned mode): about 10 min for Table 3 and 25 min for Table 4.
+Running time here (2 cores): training the cosine and uniform models 2-3 min each (cached and
+shared by both tables); per KITTI frame, warm, about 0.1 s (SGBM), 3.5 s (census), 7.5 s (cosine)
+and 25-30 s (dense heads in pruned mode, K = 8): 7 min for Table 3, about 20 min for Table 4.
 Prints and writes experiments/results/table3.{json,md} or table4.{json,md}. No GPU was lent to
 the machine that made the committed tables, so runtimes are CPU runtimes only.
 """

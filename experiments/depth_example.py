@@ -3,7 +3,8 @@ Z = B·f/d, using KITTI's calibration file format.
 
 Command:  make depth-example   (= .venv/bin/python experiments/depth_example.py [--frame 000021])
           .venv/bin/python experiments/depth_example.py --quick     (census chain, seconds)
-Running time here (2 cores): about 1 min (shipped KITTI model, pruned mode); --quick about 10 s.
+Running time here (2 cores): about 2 min (shipped KITTI model, pruned mode K = 32, with
+compilation); --quick about 15 s.
 
 The shared data has no calibration files, so the script writes one in KITTI's
 ``calib_cam_to_cam`` format with a representative KITTI rectification (P_rect_02 / P_rect_03 of

@@ -4,7 +4,8 @@ shipped KITTI 2015 model (downsize head, relaxed loss) in the default `preset("l
 
 Command:  make figures   (= .venv/bin/python experiments/figures.py [--frames 000021 000024 ...])
           .venv/bin/python experiments/figures.py --quick      (one cropped frame, seconds)
-Running time here (2 cores): about 1 min per KITTI frame (pruned mode, K = 32).
+Running time here (2 cores): 6.5 min for the 4 default frames (pruned mode, K = 32; about
+1 min a frame warm, more with other jobs on the cores).
 Writes experiments/results/figures/fig_<frame>.png and experiments/results/figures.{json,md}
 (per frame: > 3 px error, share of over-exposed pixels, and why the frame was chosen). The
 default frames are validation frames (never trained on) picked by looking at them: 000021

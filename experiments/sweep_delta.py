@@ -1,14 +1,14 @@
 """Table 2 — sweep of the relaxed loss's margin Delta: disparity error per Delta, mean ± std over
 seeds, with a plot.
 
-Command:  make sweep-delta [DELTAS="0 0.03 0.04 0.05 0.06 0.07" SEEDS=3]
-          (= .venv/bin/python experiments/sweep_delta.py --deltas 0 0.03 ... --seeds 3)
+Command:  make sweep-delta [DELTAS="0 0.03 0.04 0.05 0.06 0.07" SWEEP_SEEDS=2]
+          (= .venv/bin/python experiments/sweep_delta.py --deltas 0 0.03 ... --seeds 2 --kitti-frames 3)
           .venv/bin/python experiments/sweep_delta.py --quick      (smoke test, about a minute)
-Running time here (2 cores): about 4 min per model (2.5 min training + scoring on the KITTI 2015
-test frames), models shared with Table 1 (Delta 0 and 0.05) are reused: about 50 min for the
-default 6 Deltas x 3 seeds after Table 1.
+Running time here (2 cores): about 3 min per new model (1000 steps of training + scoring 3 KITTI
+frames); Delta 0 and 0.05 are reused from Table 1: about 25 min for the default 6 Deltas x 2
+seeds after Table 1. The table and plot are rewritten after every Delta.
 Prints and writes experiments/results/table2.{json,md} and figures/table2_delta.png: for each
-Delta the > 3 px and > 2 px errors on KITTI 2015 000021-000030 (non-occluded GT, model trained on
+Delta the > 3 px and > 2 px errors on KITTI 2015 test frames (non-occluded GT, model trained on
 000001-000020) and the patch-level validation error, mean ± std over seeds.
 """
 

@@ -1,11 +1,11 @@
 """Table 1 — loss comparison: plain cross-entropy (Delta = 0, MC-CNN's loss) against the relaxed
 loss (Delta = 0.05, paper Eq. 3.6), same network (downsize head) and schedule, several seeds.
 
-Command:  make table1            (= .venv/bin/python experiments/table1.py [--seeds 3 --steps 1500])
+Command:  make table1            (= .venv/bin/python experiments/table1.py [--seeds 3 --steps 1000 --kitti-frames 3])
           .venv/bin/python experiments/table1.py --quick      (smoke test, about a minute)
-Running time here (2 cores): about 2.5 min of training per model (12 models: 2 losses x 3 seeds x
-2 training sets) plus about 1.5 min of scoring per model, about 50 min in all; cached models
-are reused (see experiments/common.py), so a re-run only prints.
+Running time here (2 cores): 51 min for the committed table (12 models of 1000 steps, each about
+2-4 min of training and 1-2 min of scoring, with other jobs sharing the cores part of the time);
+cached models are reused (see experiments/common.py), so a re-run only prints.
 Prints and writes experiments/results/table1.{json,md}: per loss, mean ± std over seeds of the
 patch-level validation error and of the > 3 px disparity error in four train -> test columns that
 the data we have stands in for the paper's: KITTI 2015 -> KITTI 2015 (train 000001-000020, test
