@@ -24,9 +24,11 @@ Every number below was produced by the scripts in `experiments/` from the data i
 `../shared/data`, on this project's 2-core CPU machine (no GPU); each section ends with the
 command that made it. The data we have is much smaller than the paper's (20 KITTI 2015 training
 frames instead of 200, one KITTI 2012 frame, seven Middlebury scenes), and the networks in
-Tables 1-4 are trained with a reduced *experiment schedule* (a few thousand SGD steps, see
-`experiments/common.py`) so that several seeds fit in one session: compare rows with each other,
-and read the spread over seeds before reading a difference.
+Tables 1-4 are trained with a reduced *experiment schedule* (1 000 SGD steps of 150 + 150 + 150
+patches each, see `experiments/common.py`) and scored in pruned mode (the dense head on the 8
+best census candidates of each pixel) so that several seeds fit in one session: compare rows
+with each other, and read the spread over seeds before reading a difference. The robustness
+tests are reported separately in [robustness.md](robustness.md).
 """
 
 
