@@ -253,8 +253,9 @@ def write_outputs(setup: Setup, name: str, data: dict, markdown: str) -> None:
     """``<out>/<name>.json`` (with the mode and command) and ``<out>/<name>.md``, atomically;
     quick mode writes ``<name>_quick.*`` so that it never overwrites the full results."""
     stem = f"{name}_quick" if setup.quick else name
-    command = "python " + " ".join([str(Path(sys.argv[0]).relative_to(ROOT)) if Path(sys.argv[0]).is_absolute()
-                                    and ROOT in Path(sys.argv[0]).parents else sys.argv[0], *sys.argv[1:]])
+    script = Path(sys.argv[0]).resolve()
+    shown = script.relative_to(ROOT) if ROOT in script.parents else script
+    command = " ".join(["python", str(shown), *sys.argv[1:]])
     meta = {"command": command, "quick": setup.quick, "steps": setup.steps,
             "candidates": setup.candidates, "kitti_frames": setup.kitti_frames}
     write_json(setup.out / f"{stem}.json", {**meta, **data})

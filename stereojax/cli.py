@@ -17,10 +17,11 @@ from typing import Sequence
 
 import numpy as np
 
+from .data.datasets import KITTI_MAX_DISP
 from .data.io import json_default as _json_default, write_json
 from .errors import ConfigError, OutputError, StereoError, StereoInputError
 
-DEFAULT_MAX_DISP = 228
+DEFAULT_MAX_DISP = KITTI_MAX_DISP     # 228, the KITTI search range of the data layer
 
 
 # ---- helpers -----------------------------------------------------------------------------------
