@@ -53,8 +53,8 @@ evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015|kitti2012|middlebu
 	$(CLI) evaluate --data $(DATA) --dataset $(DATASET) --frames $(FRAMES) --method $(METHOD) --sgbm \
 	  $(if $(filter middlebury,$(DATASET)),--gt occ) --out experiments/results/evaluate_$(DATASET)_$(METHOD)
 
-bench: $(STAMP)  ## time each stage on a KITTI-sized frame -> experiments/results/bench.{json,md}
-	$(PY) experiments/bench.py --out experiments/results
+bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS -> experiments/results/bench.{json,md}
+	$(CLI) bench --out experiments/results
 
 train: $(STAMP)  ## train the downsize/relaxed model on KITTI 2015 000001-000020 (cpu preset, 50000 steps, 45-90 min here) -> runs/kitti2015_downsize
 	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000020 --val-frames 000021-000030 \

@@ -11,7 +11,7 @@ from .config import AggregationConfig, CostConfig, RefineConfig, SGMConfig, Ster
 from .errors import (CheckpointError, ConfigError, InputWarning, MemoryBudgetError, OutputError,
                      StereoError, StereoInputError)
 from .pipeline import disparity, stages
-from .train import load_model
+from .models import load_model
 
 __all__ = [
     "disparity", "stages", "preset", "load_model",

@@ -103,42 +103,88 @@ def stage_timings(left, right, cfg, repeats=3):
     return rows
 
 
-def chain_memory(max_disp: int, method: str) -> dict:
-    """Run the whole chain once in a child process; return its peak RSS and timings."""
-    code = ("import json,resource,sys,time;"
-            "from stereojax.bench import _chain_child;"
-            f"print(json.dumps(_chain_child({max_disp}, {method!r})))")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
-    if proc.returncode != 0:
-        return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr else "child failed"}
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
-def _chain_child(max_disp: int, method: str) -> dict:
+def _chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
+    """Compile and run the chain of ``--method`` (best: learned with the shipped KITTI model)
+    on the bench pair in this (fresh) process; warm time, compile time and peak RSS."""
     import jax
-    import jax.numpy as jnp
 
     from . import pipeline
+    from .compile_cache import bucket_shape
     from .config import preset
+    from .models import load_model, shipped_weights
 
-    cfg = preset(method, max_disp)
+    model = load_model(shipped_weights("kitti2015")) if method == "best" else None
+    cfg = preset("learned" if method == "best" else method, max_disp)
     left, right, src = _bench_pair()
-    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
+    gl, gr = pipeline.prepare_pair(left, right, cfg)
     t0 = time.perf_counter()
-    compiled = pipeline.disparity_grey.lower(gl, gr, cfg).compile()
+    chain, _ = pipeline.compiled_chain(bucket_shape(*gl.shape), cfg, model)
     compile_s = time.perf_counter() - t0
-    mem = compiled.memory_analysis()
-    jax.block_until_ready(compiled(gl, gr))
+    chain(gl, gr)
     runs = []
-    for _ in range(3):
+    for _ in range(repeats):
         t0 = time.perf_counter()
-        jax.block_until_ready(compiled(gl, gr))
+        chain(gl, gr)
         runs.append(time.perf_counter() - t0)
-    peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return {"warm_s": float(np.median(runs)), "compile_s": compile_s,
-            "peak_rss_gib": peak_kib / 2 ** 20,
-            "xla_temp_gib": getattr(mem, "temp_size_in_bytes", 0) / 2 ** 30 if mem else None,
-            "source": src}
+            "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20,
+            "backend": jax.default_backend(), "source": src}
+
+
+def _child(code: str, env=None) -> tuple[dict | None, float, float, str]:
+    """Run ``python -c code`` in a fresh process: (its last stdout line as JSON or None, wall
+    seconds, peak RSS GiB, last stderr line)."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    out, err = proc.communicate()
+    wall = time.perf_counter() - t0
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2 ** 20   # max over children so far
+    result = None
+    if proc.returncode == 0 and out.strip():
+        try:
+            result = json.loads(out.strip().splitlines()[-1])
+        except json.JSONDecodeError:
+            result = None
+    last_err = err.strip().splitlines()[-1] if err.strip() else ""
+    return result, wall, peak, last_err
+
+
+def chain_memory(max_disp: int, method: str) -> dict:
+    """Warm time, compile time and peak RSS of the whole chain in a fresh child process."""
+    code = ("import json;from stereojax.bench import _chain_child;"
+            f"print(json.dumps(_chain_child({max_disp}, {method!r})))")
+    res, _, _, err = _child(code, {**os.environ, "STEREOJAX_CACHE_DIR": "off"})
+    return res if res is not None else {"error": err or "child failed"}
+
+
+def process_timings(max_disp: int, method: str, left_path: Path, right_path: Path, work: Path) -> dict:
+    """``stereojax predict`` as a user runs it, twice, with an empty compilation cache: the wall
+    time of the cold first process and of the second one (cache hit), and their peak RSS."""
+    cache = work / f"cache_{method}"
+    env = {**os.environ, "STEREOJAX_CACHE_DIR": str(cache)}
+    out = {}
+    for name in ("cold", "cache_hit"):
+        code = ("import sys, json; from stereojax.cli import main; "
+                f"rc = main(['predict', {str(left_path)!r}, {str(right_path)!r}, '--out', "
+                f"{str(work / ('out_' + method))!r}, '--max-disp', '{max_disp}', '--method', {method!r}]); "
+                f"t = json.load(open({str(work / ('out_' + method) / 'timings.json')!r})); "
+                "print(json.dumps({'rc': rc, **t}))")
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        stdout = proc.stdout.read()
+        stderr = proc.stderr.read()
+        proc.stdout.close()
+        proc.stderr.close()
+        try:
+            inner = json.loads(stdout.strip().splitlines()[-1])
+        except (json.JSONDecodeError, IndexError):
+            inner = {"error": stderr.strip().splitlines()[-1] if stderr.strip() else "failed"}
+        out[name] = {"wall_s": wall, "peak_rss_gib": usage.ru_maxrss / 2 ** 20, **inner}
+    return out
 
 
 def sgbm_timings(left, right, max_disp, repeats=3) -> dict:
@@ -167,88 +213,162 @@ def matmul_rate(n: int = 4096, repeats: int = 3) -> float:
     return 2 * n ** 3 / t["warm_s"] / 1e9
 
 
-def learned_timings(left, right, max_disp: int, repeats: int = 2, exact_disps: int = 8) -> dict:
-    """Warm times of the network cost volumes on the pair: cosine head (fresh weights), the
-    shipped downsize model in pruned mode (K = 32) and, for the exact downsize head, the time
-    of ``exact_disps`` disparities scaled to ``max_disp`` (the work is linear in D)."""
+def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: int = 8) -> dict:
+    """Warm time of each stage of the ``best`` chain (the learned cost in adaptive pruned mode
+    with the shipped KITTI model), each stage jitted on its own; and the exact head's cost
+    volume timed on ``exact_disps`` disparities and scaled to ``max_disp`` (the work is linear
+    in D)."""
     import jax
     import jax.numpy as jnp
 
-    from . import pipeline
-    from .learned_cost import learned_cost
-    from .nets import init_params, net_preset
-    from .train import load_model, shipped_weights
+    from . import learned_cost as lc, pipeline
+    from .config import preset
+    from .models import load_model, shipped_weights
 
-    cfg = pipeline.StereoConfig(max_disp=max_disp)
-    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
-    out = {}
-    cos = net_preset("cosine", 64)
-    _, out["cosine head cost volume"] = _time(
-        lambda a, b: learned_cost(cos, init_params(cos, jax.random.PRNGKey(0)), a, b, max_disp), gl, gr,
-        repeats=repeats)
+    cfg = preset("learned", max_disp)
     model = load_model(shipped_weights("kitti2015"))
-    _, out["downsize head, pruned K=32"] = _time(
-        lambda a, b: learned_cost(model.net, model.variables, a, b, max_disp, 32, 32), gl, gr, repeats=1)
-    _, t = _time(lambda a, b: learned_cost(model.net, model.variables, a, b, exact_disps, 32, 0), gl, gr,
-                 repeats=1)
+    net, v = model.net, model.variables
+    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
+    rows = {}
+    (fl, fr), rows["tower features, both views"] = _time(
+        jax.jit(lambda a, b: lc.tower_features(net, v, a, b)), gl, gr, repeats=repeats)
+    cand_vol, rows["candidate chain (census + CBCA + SGM)"] = _time(
+        jax.jit(lambda a, b: lc.candidate_volume(a, b, cfg)), gl, gr, repeats=repeats)
+    c = cfg.cost
+    evals = c.candidates + c.unsure_share * (c.unsure_candidates - c.candidates)
+    vol, rows[f"head at the candidates ({evals:g} per pixel)"] = _time(
+        jax.jit(lambda f1, f2, cv: lc.adaptive_dense_cost(net, v, f1, f2, cv, cfg)), fl, fr, cand_vol,
+        repeats=repeats)
+    del cand_vol
+    _, rows["CBCA + SGM + refinement of the learned volume"] = _time(
+        jax.jit(lambda vv, a, b: pipeline.chain_from_volume(vv, a, b, cfg)["disparity"]), vol, gl, gr,
+        repeats=repeats)
+    del vol
+    _, t = _time(jax.jit(lambda f1, f2: lc.dense_cost(net, v, f1, f2, exact_disps, c.rows_per_tile)),
+                 fl, fr, repeats=1)
     h, w = gl.shape
-    widths = (2 * model.net.features,) + tuple(model.net.widths) + (1,)
+    widths = (2 * net.features,) + tuple(net.widths) + (1,)
     flop_per_pair = 2 * sum(a * b for a, b in zip(widths[1:-1], widths[2:]))   # layers after the split
-    scale = max_disp / exact_disps
-    out["downsize head, exact (extrapolated)"] = {"warm_s": t["warm_s"] * scale, "compile_s": t["compile_s"],
-                                                  "tflop": flop_per_pair * h * w * max_disp / 1e12}
-    out["downsize head, exact (extrapolated)"]["gflop_s"] = (
-        out["downsize head, exact (extrapolated)"]["tflop"] * 1e3 / out["downsize head, exact (extrapolated)"]["warm_s"])
-    return out
+    exact_s = t["warm_s"] * max_disp / exact_disps
+    exact = {"warm_s": exact_s, "compile_s": t["compile_s"], "tflop": flop_per_pair * h * w * max_disp / 1e12}
+    exact["gflop_s"] = exact["tflop"] * 1e3 / exact_s
+    head_key = next(k for k in rows if k.startswith("head"))
+    exact["chain_s"] = sum(r["warm_s"] for k, r in rows.items() if k.startswith(("tower", "CBCA"))) + exact_s
+    return {"stages": rows, "exact": exact, "head_key": head_key, "evals_per_pixel": evals,
+            "head_tflop": flop_per_pair * h * w * evals / 1e12}
+
+
+def _kitti_files(left, right, work: Path) -> tuple[Path, Path]:
+    """The bench pair as files (the KITTI originals when present)."""
+    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
+    lp, rp = root / "image_2" / "000021_10.png", root / "image_3" / "000021_10.png"
+    if lp.exists() and rp.exists():
+        return lp, rp
+    import cv2
+
+    lp, rp = work / "left.png", work / "right.png"
+    cv2.imwrite(str(lp), left)
+    cv2.imwrite(str(rp), right)
+    return lp, rp
 
 
 def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, method: str = "census") -> dict:
+    """Everything ``make bench`` reports, in one run on KITTI 2015 000021 (see README)."""
+    import tempfile
+
     import cv2
     import jax
 
-    from .data.io import write_json
     from .config import preset
-    from .data.io import atomic_output
+    from .data.io import atomic_output, write_json
 
     cfg = preset(method, max_disp)
     left, right, src = _bench_pair()
     print(f"bench: {src}, {left.shape[1]}x{left.shape[0]}, {max_disp} disparities, "
           f"{os.cpu_count()} CPU cores, jax {jax.__version__} on {jax.default_backend()}", flush=True)
+    sgbm = [sgbm_timings(left, right, max_disp, repeats)]
+    print(f"  OpenCV StereoSGBM (3-way, {cv2.getNumThreads()} threads): {sgbm[0]}", flush=True)
     stages = stage_timings(left, right, cfg, repeats)
     for name, t in stages.items():
-        print(f"  {name:40s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
-    chain = chain_memory(max_disp, method)
-    print(f"  whole chain: {chain}", flush=True)
-    sgbm = sgbm_timings(left, right, max_disp, repeats)
-    print(f"  OpenCV StereoSGBM (3-way, {cv2.getNumThreads()} threads): {sgbm}", flush=True)
+        print(f"  census {name:36s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
+    prof = learned_profile(left, right, max_disp)
+    for name, t in prof["stages"].items():
+        print(f"  best {name:45s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
+    print(f"  exact head (extrapolated): {prof['exact']}", flush=True)
+    chains = {m: chain_memory(max_disp, m) for m in ("best", "census")}
+    print(f"  whole chains, warm, fresh processes: {chains}", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        lp, rp = _kitti_files(left, right, work)
+        procs = {m: process_timings(max_disp, m, lp, rp, work) for m in ("best", "census")}
+    print(f"  stereojax predict processes (cold, cache hit): {procs}", flush=True)
+    sgbm.append(sgbm_timings(left, right, max_disp, repeats))
+    sgbm_pad = float(np.median([t["padded"] for t in sgbm]))
     rate = matmul_rate()
-    learned = learned_timings(left, right, max_disp)
-    print(f"  dense f32 matmul: {rate:.0f} GFLOP/s; learned cost volumes: {learned}", flush=True)
-    result = {"frame": src, "shape": list(left.shape[:2]), "max_disp": max_disp, "method": method,
+    result = {"frame": src, "shape": list(left.shape[:2]), "max_disp": max_disp,
               "cpu_cores": os.cpu_count(), "machine": platform.processor() or platform.machine(),
-              "jax": jax.__version__, "backend": jax.default_backend(), "stages": stages,
-              "chain": chain, "sgbm_s": sgbm, "matmul_gflop_s": rate, "learned": learned,
-              "config": cfg.to_dict()}
+              "jax": jax.__version__, "backend": jax.default_backend(), "sgbm_s": sgbm,
+              "sgbm_padded_s": sgbm_pad, "census_stages": stages, "best_profile": prof,
+              "chains": chains, "processes": procs, "matmul_gflop_s": rate,
+              "config_best": preset("learned", max_disp).to_dict(), "config_census": cfg.to_dict()}
     write_json(out_dir / "bench.json", result)
-    lines = [f"# Benchmark: {src}, {left.shape[1]}x{left.shape[0]}, {max_disp} disparities, "
-             f"{os.cpu_count()} CPU cores, jax {jax.__version__} ({jax.default_backend()})", "",
-             "| stage | warm s | compile s |", "|---|---|---|"]
-    lines += [f"| {k} | {v['warm_s']:.3f} | {v['compile_s']:.2f} |" for k, v in stages.items()]
-    if "warm_s" in chain:
-        lines += ["", "| whole chain (one jit) | value |", "|---|---|",
-                  f"| warm run | {chain['warm_s']:.2f} s |", f"| compile | {chain['compile_s']:.1f} s |",
-                  f"| peak RSS of the process | {chain['peak_rss_gib']:.2f} GiB |",
-                  f"| XLA temporary buffers | {chain['xla_temp_gib']:.2f} GiB |"]
-    lines += ["", "| OpenCV StereoSGBM (MODE_SGBM_3WAY, blockSize 5) | s |", "|---|---|",
-              f"| left-padded by the disparity range | {sgbm['padded']:.3f} |",
-              f"| unpadded | {sgbm['unpadded']:.3f} |", "",
-              f"| learned cost volume (matmul peak here: {rate:.0f} GFLOP/s) | warm s | compile s |",
-              "|---|---|---|"]
-    lines += [f"| {k} | {v['warm_s']:.2f} | {v['compile_s']:.1f} |" for k, v in learned.items()]
-    ex = learned["downsize head, exact (extrapolated)"]
-    lines += ["", f"Exact downsize head: {ex['tflop']:.0f} TFLOP per frame at {ex['gflop_s']:.0f} GFLOP/s "
-              f"= {100 * ex['gflop_s'] / rate:.0f} % of the measured matmul rate.", ""]
     with atomic_output(out_dir / "bench.md") as tmp:
-        Path(tmp).write_text("\n".join(lines))
+        Path(tmp).write_text(format_bench(result))
     print(f"-> {out_dir}/bench.json, {out_dir}/bench.md")
     return result
+
+
+def format_bench(r: dict) -> str:
+    """The markdown report of :func:`run_bench`'s result."""
+    sg = r["sgbm_padded_s"]
+    best, census = r["chains"]["best"], r["chains"]["census"]
+    prof, ex = r["best_profile"], r["best_profile"]["exact"]
+    h, w = r["shape"]
+
+    def ratio(x):
+        return f"{x / sg:.0f}x"
+
+    def target(ok):
+        return "met" if ok else "**not met**"
+
+    lines = [f"# Benchmark: {r['frame']}, {w}x{h}, {r['max_disp']} disparities, {r['cpu_cores']} CPU cores, "
+             f"jax {r['jax']} ({r['backend']})", "",
+             "All numbers from one run of `make bench` (`stereojax bench`); OpenCV StereoSGBM timed at the "
+             "start and the end of the run (median), so ratios compare like with like.", "",
+             "## Warm time per frame (after compilation), ratio to OpenCV SGBM", "",
+             "| method | warm s | × SGBM | target |", "|---|---|---|---|",
+             f"| OpenCV StereoSGBM (MODE_SGBM_3WAY, left-padded) | {sg:.3f} | 1x | |"]
+    if "warm_s" in best:
+        lines.append(f"| stereojax `--method best` (learned, adaptive pruned head, "
+                     f"{prof['evals_per_pixel']:g} evaluations/pixel) | {best['warm_s']:.2f} | "
+                     f"{ratio(best['warm_s'])} | ≤ 60x: {target(best['warm_s'] <= 60 * sg)} |")
+    lines.append(f"| stereojax learned, exact head (extrapolated from {8} disparities) | {ex['chain_s']:.0f} | "
+                 f"{ratio(ex['chain_s'])} | |")
+    if "warm_s" in census:
+        lines.append(f"| stereojax census chain | {census['warm_s']:.2f} | {ratio(census['warm_s'])} | "
+                     f"≤ 20x: {target(census['warm_s'] <= 20 * sg)} |")
+    lines += ["", "## Processes: compile once, peak memory", "",
+              "| method | first process (cold cache) s | second process (cache hit) s | compile in 1st / 2nd s "
+              "| peak RSS GiB | targets |", "|---|---|---|---|---|---|"]
+    for m, p in r["processes"].items():
+        cold, hit = p["cold"], p["cache_hit"]
+        warm = r["chains"][m].get("warm_s", float("nan"))
+        checks = [f"2nd ≤ warm + 5 s: {target(hit['wall_s'] <= warm + 5)}"]
+        if m == "best":
+            checks.append(f"peak RSS ≤ 3 GB: {target(max(cold['peak_rss_gib'], hit['peak_rss_gib']) * 2 ** 30 <= 3e9)}")
+        lines.append(f"| {m} | {cold['wall_s']:.1f} | {hit['wall_s']:.1f} | {cold.get('compile_s', float('nan')):.1f} / "
+                     f"{hit.get('compile_s', float('nan')):.1f} | {max(cold['peak_rss_gib'], hit['peak_rss_gib']):.2f} "
+                     f"| {'; '.join(checks)} |")
+    lines += ["", "(wall time of the whole `stereojax predict` process: interpreter start, imports, loading, "
+              "compiling or reading the compiled chain from the cache, the run, writing outputs.)", "",
+              f"## Where the time of `best` goes (each stage jitted alone, warm)", "",
+              "| stage | warm s | compile s |", "|---|---|---|"]
+    lines += [f"| {k} | {v['warm_s']:.2f} | {v['compile_s']:.1f} |" for k, v in prof["stages"].items()]
+    lines += ["", f"Head: {prof['head_tflop']:.1f} TFLOP per frame at {prof['evals_per_pixel']:g} evaluations per "
+              f"pixel; exact head {ex['tflop']:.0f} TFLOP, {ex['warm_s']:.0f} s extrapolated "
+              f"({ex['gflop_s']:.0f} GFLOP/s; dense f32 matmul peak here {r['matmul_gflop_s']:.0f} GFLOP/s).", "",
+              "## Census chain stages (each jitted alone, warm)", "", "| stage | warm s | compile s |", "|---|---|---|"]
+    lines += [f"| {k} | {v['warm_s']:.3f} | {v['compile_s']:.2f} |" for k, v in r["census_stages"].items()]
+    lines += ["", f"Peak RSS of a process that compiles and runs the chain (no cache): best "
+              f"{best.get('peak_rss_gib', float('nan')):.2f} GiB, census {census.get('peak_rss_gib', float('nan')):.2f} GiB.", ""]
+    return "\n".join(lines)

@@ -30,8 +30,15 @@ class CostConfig:
     border: matches that leave the image (x - d < 0): "replicate" compares with the repeated
       first column of the other image, "worst" gives them the worst cost (see cost.py).
     rows_per_tile: image rows per tile of the learned dense head (bounds its memory).
-    candidates: learned dense head only: 0 = exact (every disparity); K > 0 = PRUNED mode, the
-      head runs only on the K best disparities of the census pipeline (others get cost 1).
+    candidates: learned dense head only: 0 = exact (every disparity); K > 0 = PRUNED mode
+      (not exact; entries the head does not see get cost 1), see ``unsure_share``.
+      The head runs on the K best disparities of the census candidate chain of every pixel.
+    unsure_share, unsure_candidates: pruned mode, *adaptive*: this share of the pixels, those
+      where the head finds the poorest best match among the K, also gets the next candidates,
+      up to ``unsure_candidates`` in all (0 = off).
+    candidate_cbca, candidate_p1, candidate_p2: the census candidate chain (census window
+      ``census_radius``, the cross arms of ``cbca``, this many CBCA passes, the SGM settings of
+      ``sgm`` with these penalties on the census cost scale).
     """
 
     method: str = "census"
@@ -40,6 +47,11 @@ class CostConfig:
     border: str = "replicate"
     rows_per_tile: int = 32
     candidates: int = 0
+    unsure_share: float = 0.0
+    unsure_candidates: int = 0
+    candidate_cbca: int = 1
+    candidate_p1: float = 0.45
+    candidate_p2: float = 7.2
 
     def validate(self) -> None:
         if self.method not in COST_METHODS:
@@ -55,6 +67,13 @@ class CostConfig:
                               f"{self.rows_per_tile}, {self.candidates}")
         if self.sad_radius < 0:
             raise ConfigError(f"cost.sad_radius must be >= 0, got {self.sad_radius}")
+        if not 0.0 <= self.unsure_share <= 1.0 or self.unsure_candidates < 0 or self.candidate_cbca < 0:
+            raise ConfigError("cost.unsure_share must be in [0, 1], cost.unsure_candidates and "
+                              f"cost.candidate_cbca >= 0, got {self.unsure_share}, "
+                              f"{self.unsure_candidates}, {self.candidate_cbca}")
+        if not 0 <= self.candidate_p1 <= self.candidate_p2:
+            raise ConfigError("need 0 <= cost.candidate_p1 <= cost.candidate_p2, got "
+                              f"{self.candidate_p1}, {self.candidate_p2}")
 
 
 @dataclass(frozen=True)
@@ -259,12 +278,16 @@ def preset(name: str, max_disp: int = 228) -> StereoConfig:
             sgm=SGMConfig(p1=0.2, p2=3.2),
         ),
     }
-    # learned cost (1 - similarity): a preliminary setting from 4 configurations on training
-    # frames 000001 and 000003, see experiments/results/tuning.md. PRUNED mode by default
-    # (head on the 32 best census candidates: 3.15 % vs 3.10 % > 3 px exact on KITTI 000022,
-    # 31 s instead of 200 s a frame on 2 cores); candidates=0 gives the exact head.
+    # learned cost (1 - similarity): CBCA/SGM from a preliminary setting of 4 configurations on
+    # training frames 000001 and 000003, see experiments/results/tuning.md. PRUNED mode by
+    # default, adaptive: the head on the 6 best census candidates of every pixel and on 16 for
+    # the 20 % of pixels where it finds the poorest match (8 head evaluations per pixel instead
+    # of 228), chosen on training frames 000001-000011 (odd) from the schemes in
+    # experiments/results/speed.md; cost.candidates=0 gives the exact head.
     presets["learned"] = StereoConfig(
-        max_disp=max_disp, cost=CostConfig(method="learned", candidates=min(32, max_disp)),
+        max_disp=max_disp,
+        cost=CostConfig(method="learned", candidates=min(6, max_disp), unsure_share=0.2,
+                        unsure_candidates=min(16, max_disp)),
         cbca=AggregationConfig(iterations_before=2), sgm=SGMConfig(p1=0.5, p2=8.0))
     if name not in presets:
         raise ConfigError(f"unknown preset {name!r}; choose one of {sorted(presets)}")

@@ -110,51 +110,178 @@ def naive_dense_cost(net: NetConfig, variables, fl, fr, max_disp: int) -> jax.Ar
     return jnp.stack(cols, axis=-1)
 
 
+def _head_at(model, variables, a: jax.Array, b: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
+    """``f32[H, W, K]``: head cost 1 - s at the disparities ``cand`` ``i32[H, W, K]``.
+
+    a, b: the split first layer of the left and right view ``f32[H, W, C1]``. Rows go through
+    ``lax.map`` a few at a time, so the ``[rows, W, K, C1]`` pre-activation stays small.
+    """
+    w, c1 = a.shape[1], a.shape[2]
+    rows_per_batch = max(1, min(rows_per_batch, (64 << 20) // (w * cand.shape[-1] * c1 * 4)))
+
+    def row(args):
+        at, bt, ct = args                                                   # [W, C1], [W, C1], [W, K]
+        cols = jnp.maximum(jnp.arange(w)[:, None] - ct, 0)
+        logit = model.apply(variables, at[:, None, :] + bt[cols], method=MatchNet.finish)
+        return 1.0 - jax.nn.sigmoid(logit)
+
+    return jax.lax.map(row, (a, b, cand), batch_size=rows_per_batch)
+
+
+def _head_at_pixels(model, variables, a, b, ys, xs, cand, chunk: int = 2048) -> jax.Array:
+    """``f32[M, K]``: head cost at pixels (ys, xs) ``i32[M]`` and disparities ``cand`` ``i32[M, K]``."""
+    m, k = cand.shape
+    chunks = -(-m // chunk)
+    pad = chunks * chunk - m
+
+    def padded(x):
+        return jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1)).reshape((chunks, chunk) + x.shape[1:])
+
+    def one(args):
+        y, x, c = args                                                       # [n], [n], [n, K]
+        hpre = a[y, x][:, None, :] + b[y[:, None], jnp.maximum(x[:, None] - c, 0)]
+        return 1.0 - jax.nn.sigmoid(model.apply(variables, hpre, method=MatchNet.finish))
+
+    return jax.lax.map(one, (padded(ys), padded(xs), padded(cand))).reshape(chunks * chunk, k)[:m]
+
+
 def pruned_dense_cost(net: NetConfig, variables, fl: jax.Array, fr: jax.Array, candidates: jax.Array,
                       max_disp: int, rows_per_tile: int = 4, fill: float = 1.0) -> jax.Array:
     """PRUNED MODE (not exact): the dense head only at ``candidates`` ``i32[H, W, K]``.
 
     Every other entry of the ``f32[H, W, D]`` volume gets ``fill`` (the worst cost). With K
-    candidates per pixel this costs K / D of :func:`dense_cost`.
+    candidates per pixel this costs K / D of :func:`dense_cost`. Candidates must be distinct
+    per pixel; an index >= ``max_disp`` is ignored.
     """
     model = MatchNet(net)
     a, b = model.apply(variables, fl, fr, method=MatchNet.project)            # [H, W, C1]
-    h, w, c1 = a.shape
-    k = candidates.shape[-1]
-    tiles = -(-h // rows_per_tile)
-    pad = tiles * rows_per_tile - h
-
-    def tiled(x):
-        return jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1)).reshape((tiles, rows_per_tile) + x.shape[1:])
-
-    def tile_cost(args):
-        at, bt, ct = args                                                     # [R, W, C1], [R, W, K]
-        cols = jnp.maximum(jnp.arange(w)[None, :, None] - ct, 0)              # [R, W, K]
-        rows = jnp.arange(rows_per_tile)[:, None, None]
-        hpre = at[:, :, None, :] + bt[rows, cols]                             # [R, W, K, C1]
-        logit = model.apply(variables, hpre, method=MatchNet.finish)          # [R, W, K]
-        vol = jnp.full((rows_per_tile, w, max_disp), fill, jnp.float32)
-        r_i = jnp.broadcast_to(rows, ct.shape)
-        x_i = jnp.broadcast_to(jnp.arange(w)[None, :, None], ct.shape)
-        return vol.at[r_i, x_i, ct].set(1.0 - jax.nn.sigmoid(logit))
-
-    vol = jax.lax.map(tile_cost, (tiled(a), tiled(b), tiled(candidates)))
-    return vol.reshape(tiles * rows_per_tile, w, max_disp)[:h]
+    h, w, _ = a.shape
+    costs = _head_at(model, variables, a, b, jnp.minimum(candidates, max_disp - 1), rows_per_tile)
+    yy, xx = jnp.mgrid[:h, :w]
+    vol = jnp.full((h, w, max_disp), fill, jnp.float32)
+    return vol.at[yy[..., None], xx[..., None], candidates].set(costs, mode="drop")
 
 
-def census_candidates(left: jax.Array, right: jax.Array, max_disp: int, k: int) -> jax.Array:
-    """``i32[H, W, K]``: the K disparities of lowest census + CBCA + SGM cost (tuned census
-    preset), the candidate generator of the pruned mode."""
+def candidate_config(config):
+    """The census chain that proposes the learned head's candidates, from the learned chain's
+    own config: census window ``cost.census_radius``, cross arms of ``cbca``, its
+    ``cost.candidate_cbca`` passes, and ``sgm`` with ``cost.candidate_p1`` / ``candidate_p2``
+    (penalties on the census cost scale)."""
+    import dataclasses
+
+    c = config.cost
+    return dataclasses.replace(
+        config, cost=dataclasses.replace(c, method="census", candidates=0),
+        cbca=dataclasses.replace(config.cbca, iterations_before=c.candidate_cbca, iterations_after=0),
+        sgm=dataclasses.replace(config.sgm, p1=c.candidate_p1, p2=c.candidate_p2))
+
+
+def candidate_volume(left: jax.Array, right: jax.Array, config, mask=None) -> jax.Array:
+    """``f32[H, W, D]``: census + CBCA + SGM cost of :func:`candidate_config` (lower is better).
+    mask: real pixels of a padded pair (see :func:`stereojax.pipeline.real_pixels`)."""
     from . import aggregation, cost as cost_mod
-    from .config import StereoConfig
+    from .pipeline import _arms
     from .sgm import sgm
 
-    c = StereoConfig()
-    vol = cost_mod.census_cost(left, right, max_disp, c.cost.census_radius)
-    arms = aggregation.cross_arms(left, c.cbca.tau, c.cbca.arm_length)
-    vol = aggregation.cbca(vol, arms, c.cbca.iterations_before, c.cbca.arm_length)
-    vol = sgm(vol, left, right, c.sgm)
-    return jax.lax.top_k(-vol, k)[1].astype(jnp.int32)
+    c = candidate_config(config)
+    vol = cost_mod.census_cost(left, right, c.max_disp, c.cost.census_radius)
+    vol = aggregation.cbca(vol, _arms(left, c, mask), c.cbca.iterations_before, c.cbca.arm_length)
+    return sgm(vol, left, right, c.sgm, mask)
+
+
+def census_candidates(left: jax.Array, right: jax.Array, config, k: int, mask=None) -> jax.Array:
+    """``i32[H, W, K]``: the K disparities of lowest :func:`candidate_volume` cost, best first."""
+    return jax.lax.top_k(-candidate_volume(left, right, config, mask), k)[1].astype(jnp.int32)
+
+
+def adaptive_dense_cost(net: NetConfig, variables, fl, fr, cand_vol: jax.Array, config,
+                        fill: float = 1.0, valid=None) -> jax.Array:
+    """PRUNED MODE, adaptive (not exact): ``f32[H, W, D]`` with the head evaluated
+
+    1. for every pixel at the K = ``config.cost.candidates`` disparities of lowest cost in the
+       candidate volume ``cand_vol``;
+    2. for the ``config.cost.unsure_share`` of pixels where the head is least sure (the
+       highest best head cost among those K: no good match found), also at the next
+       candidates, up to K2 = ``config.cost.unsure_candidates`` in all.
+
+    Every other entry gets ``fill``. Cost: K + share * (K2 - K) head evaluations per pixel
+    instead of D. valid: ``i32[2]`` real size of a padded pair: the share is then of the real
+    pixels, and padding pixels are never chosen, so the real pixels get exactly the choice of
+    the unpadded pair.
+    """
+    c = config.cost
+    d = config.max_disp
+    k1, k2 = min(c.candidates, d), min(max(c.unsure_candidates, c.candidates), d)
+    model = MatchNet(net)
+    a, b = model.apply(variables, fl, fr, method=MatchNet.project)            # [H, W, C1]
+    h, w, _ = a.shape
+    cand = jax.lax.top_k(-cand_vol, k1)[1].astype(jnp.int32)                  # [H, W, K], best first
+    cost = _head_at(model, variables, a, b, cand, c.rows_per_tile)
+    yy, xx = jnp.mgrid[:h, :w]
+    vol = jnp.full((h, w, d), fill, jnp.float32).at[yy[..., None], xx[..., None], cand].set(cost)
+    m = int(c.unsure_share * h * w)
+    if m == 0 or k2 <= k1:
+        return vol
+    unsure = cost.min(axis=-1)                                                # best head cost found
+    if valid is not None:
+        from .pipeline import real_pixels
+
+        unsure = jnp.where(real_pixels((h, w), valid), unsure, -1.0)          # padding: never chosen
+    pix = jnp.argsort(-unsure.reshape(-1), stable=True)[:m]                    # least sure first
+    ys, xs = pix // w, pix % w
+    more = jax.lax.top_k(-cand_vol.reshape(h * w, d)[pix], k2)[1][:, k1:].astype(jnp.int32)   # [M, K2-K]
+    if valid is not None:   # the share is of the real pixels
+        m_real = jnp.floor(c.unsure_share * valid[0] * valid[1]).astype(jnp.int32)
+        more = jnp.where((jnp.arange(m) < m_real)[:, None], more, d)
+    more_cost = _head_at_pixels(model, variables, a, b, ys, xs, jnp.minimum(more, d - 1))
+    return vol.at[ys[:, None], xs[:, None], more].set(more_cost, mode="drop")
+
+
+def tower_features(net: NetConfig, variables, left: jax.Array, right: jax.Array, valid=None):
+    """Tower features ``f32[H, W, F]`` of both views, in one batched call of the tower.
+
+    valid: ``i32[2]`` (rows, columns) of the real image when the pair is padded to a size
+    bucket; the normalisation statistics are then taken over that region only.
+    """
+    from .pipeline import real_pixels
+
+    mask = real_pixels(left.shape, valid)
+    if mask is None:
+        mask = jnp.ones(left.shape, bool)
+
+    def norm(g):
+        n = jnp.maximum(mask.sum(), 1)
+        mean = jnp.where(mask, g, 0.0).sum() / n
+        std = jnp.sqrt(jnp.where(mask, (g - mean) ** 2, 0.0).sum() / n)
+        return (g - mean) / jnp.maximum(std, 1e-6)
+
+    r = net.layers
+    x = jnp.stack([jnp.pad(norm(left), r, mode="edge"), jnp.pad(norm(right), r, mode="edge")])[..., None]
+    f = MatchNet(net).apply(variables, x, False, method=MatchNet.features)
+    return f[0], f[1]
+
+
+def learned_volume(net: NetConfig, variables, left: jax.Array, right: jax.Array, config, valid=None) -> jax.Array:
+    """Left-view cost volume ``f32[H, W, D]`` of grey images (0..255) ``f32[H, W]`` for the
+    chain ``config`` (a StereoConfig with ``cost.method == "learned"``).
+
+    ``config.cost.candidates``: 0 = exact (every disparity through the head); K > 0 = pruned
+    mode: the head runs on the K best disparities of the census candidate chain, and on
+    ``cost.unsure_candidates`` for the ``cost.unsure_share`` of the pixels where it is least
+    sure (:func:`adaptive_dense_cost`).
+    """
+    c = config.cost
+    d = config.max_disp
+    from .pipeline import real_pixels
+
+    mask = real_pixels(left.shape, valid)
+    fl, fr = tower_features(net, variables, left, right, valid)
+    if net.head == "cosine":
+        return cosine_cost(fl, fr, d)
+    if not c.candidates:
+        return dense_cost(net, variables, fl, fr, d, c.rows_per_tile)
+    return adaptive_dense_cost(net, variables, fl, fr, candidate_volume(left, right, config, mask),
+                               config, valid=valid)
 
 
 @functools.partial(jax.jit, static_argnames=("net", "max_disp", "rows_per_tile", "candidates"))
@@ -163,13 +290,11 @@ def learned_cost(net: NetConfig, variables, left: jax.Array, right: jax.Array, m
     """Left-view cost volume ``f32[H, W, D]`` of grey images (0..255) ``f32[H, W]``.
 
     candidates: 0 = exact (every disparity through the head); K > 0 = pruned mode, the dense
-    head only on the K best disparities of the census pipeline (see :func:`pruned_dense_cost`).
+    head only on the K best disparities of the census chain of the default settings. The
+    chain itself uses :func:`learned_volume`, which takes every setting from its config.
     """
-    fl = image_features(net, variables, normalise(left))
-    fr = image_features(net, variables, normalise(right))
-    if net.head == "cosine":
-        return cosine_cost(fl, fr, max_disp)
-    if candidates:
-        cand = census_candidates(left, right, max_disp, min(candidates, max_disp))
-        return pruned_dense_cost(net, variables, fl, fr, cand, max_disp, max(1, rows_per_tile // 8))
-    return dense_cost(net, variables, fl, fr, max_disp, rows_per_tile)
+    from .config import CostConfig, StereoConfig
+
+    cfg = StereoConfig(max_disp=max_disp, cost=CostConfig(method="learned", rows_per_tile=rows_per_tile,
+                                                          candidates=candidates))
+    return learned_volume(net, variables, left, right, cfg)

@@ -124,53 +124,81 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=No
     return gl, gr
 
 
-def _view_chain(cost, ref, other, config: StereoConfig, view: str):
+def _arms(ref, config: StereoConfig, mask=None):
+    """Cross arms of the reference image; with a ``mask`` of real pixels (a pair padded to its
+    size bucket) no arm reaches into the padding, as none reaches out of an unpadded image."""
+    if mask is not None:
+        ref = jnp.where(mask, ref, jnp.float32(1e9))
+    return aggregation.cross_arms(ref, config.cbca.tau, config.cbca.arm_length)
+
+
+def _view_chain(cost, ref, other, config: StereoConfig, view: str, mask=None):
     """CBCA -> SGM -> CBCA for one view. Returns dict of volumes."""
-    arms = aggregation.cross_arms(ref, config.cbca.tau, config.cbca.arm_length)
+    arms = _arms(ref, config, mask)
     c1 = aggregation.cbca(cost, arms, config.cbca.iterations_before, config.cbca.arm_length)
     if view == "left":
-        c2 = sgm(c1, ref, other, config.sgm)
+        c2 = sgm(c1, ref, other, config.sgm, mask)
     else:
         # right view: reuse the left-view recurrences on mirrored images (x -> W - 1 - x turns
         # "match at x + d" into "match at x' - d")
-        mirrored = sgm(c1[:, ::-1], ref[:, ::-1], other[:, ::-1], config.sgm)
+        mirrored = sgm(c1[:, ::-1], ref[:, ::-1], other[:, ::-1], config.sgm,
+                       None if mask is None else mask[:, ::-1])
         c2 = mirrored[:, ::-1]
     c3 = aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
     return c1, c2, c3
 
 
-def _left_volume(left, right, config: StereoConfig, variables, net):
-    if config.cost.method == "learned":
-        from .learned_cost import learned_cost
+def real_pixels(shape, valid):
+    """``bool[H, W]``: the real pixels (rows < valid[0], columns < valid[1]) of a padded pair;
+    None when ``valid`` is None (nothing padded)."""
+    if valid is None:
+        return None
+    h, w = shape
+    return (jnp.arange(h)[:, None] < valid[0]) & (jnp.arange(w)[None, :] < valid[1])
 
-        return learned_cost(net, variables, left, right, config.max_disp, config.cost.rows_per_tile,
-                            config.cost.candidates)
+
+def _left_volume(left, right, config: StereoConfig, variables, net, valid=None):
+    if config.cost.method == "learned":
+        from .learned_cost import learned_volume
+
+        return learned_volume(net, variables, left, right, config, valid)
     return cost_mod.matching_cost(left, right, config.max_disp, config.cost, "left")
 
 
 def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, variables=None, net=None,
-           keep: bool = True) -> dict[str, jax.Array]:
+           keep: bool = True, valid=None) -> dict[str, jax.Array]:
+    vol = _left_volume(left, right, config, variables, net, valid)
+    return chain_from_volume(vol, left, right, config, keep, valid)
+
+
+def chain_from_volume(vol: jax.Array, left: jax.Array, right: jax.Array, config: StereoConfig,
+                      keep: bool = False, valid=None) -> dict[str, jax.Array]:
+    """Everything after the matching cost: CBCA -> SGM -> CBCA -> WTA -> LR check and filling
+    -> sub-pixel -> median -> bilateral, on the left-view volume ``f32[H, W, D]``."""
     d = config.max_disp
-    vol = _left_volume(left, right, config, variables, net)
-    c_cbca, c_sgm, c_final = _view_chain(vol, left, right, config, "left")
+    mask = real_pixels(left.shape, valid)
+    c_cbca, c_sgm, c_final = _view_chain(vol, left, right, config, "left", mask)
     disp_wta = refine.wta(c_final)
     out = {"disp_wta": disp_wta}
     if keep:
         out.update(cost=vol, cost_cbca=c_cbca, cost_sgm=c_sgm, cost_final=c_final)
 
     disp = disp_wta.astype(jnp.float32)
+    vw = None if valid is None else valid[1]
     if config.refine.lr_check:
         if config.refine.right_from_left:
-            c_right = refine.right_cost_from_left(c_final, cost_mod.INVALID_COST)
+            c_right = refine.right_cost_from_left(c_final, cost_mod.INVALID_COST, vw)
         else:
             if config.cost.method == "learned":
                 # the network's right-view cost is exactly the skewed left one: C_R(x, d) = C_L(x + d, d)
-                vol_r = refine.right_cost_from_left(vol, cost_mod.INVALID_COST)
+                vol_r = refine.right_cost_from_left(vol, cost_mod.INVALID_COST, vw)
             else:
                 vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
-            c_right = _view_chain(vol_r, right, left, config, "right")[2]
+            c_right = _view_chain(vol_r, right, left, config, "right", mask)[2]
         disp_right = refine.wta(c_right)
         labels = refine.lr_check(disp, disp_right.astype(jnp.float32), d, config.refine.lr_tolerance)
+        if mask is not None:    # padding never serves as a source of the filling
+            labels = jnp.where(mask, labels, refine.MISMATCH)
         disp = refine.fill_disparity(disp, labels)
         out.update(disp_right=disp_right, labels=labels, disp_filled=disp)
     if config.refine.subpixel:
@@ -197,6 +225,69 @@ def disparity_grey(left: jax.Array, right: jax.Array, config: StereoConfig, vari
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
+def disparity_padded(left: jax.Array, right: jax.Array, valid: jax.Array, config: StereoConfig,
+                     variables=None, net=None) -> jax.Array:
+    """:func:`disparity_grey` on a pair padded (right and bottom) to its size bucket.
+
+    valid: ``i32[2]``, the real (rows, columns); it is an argument, not a static value, so every
+    frame of one bucket runs the same compiled program. Crop the result to ``[:rows, :cols]``.
+    """
+    return _chain(left, right, config, variables, net, keep=False, valid=valid)["disparity"]
+
+
+def pad_to(grey: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Pad ``f32[H, W]`` on the right and bottom to ``shape`` by repeating the last column/row."""
+    h, w = grey.shape
+    return np.pad(grey, ((0, shape[0] - h), (0, shape[1] - w)), mode="edge")
+
+
+class CompiledChain:
+    """The chain compiled once for a size bucket and a config (ahead of time, so that compiling
+    and running can be timed and reported apart). Call it with grey ``f32[H, W]`` images of any
+    size in the bucket; it pads, runs and crops back exactly.
+    """
+
+    def __init__(self, shape: tuple[int, int], config: StereoConfig, variables=None, net=None):
+        self.shape, self.config, self.variables, self.net = shape, config, variables, net
+        spec = jax.ShapeDtypeStruct(shape, jnp.float32)
+        valid = jax.ShapeDtypeStruct((2,), jnp.int32)
+        self._compiled = disparity_padded.lower(spec, spec, valid, config, variables, net).compile()
+
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        h, w = left.shape
+        if h > self.shape[0] or w > self.shape[1]:
+            raise ValueError(f"a {h}x{w} pair does not fit the {self.shape[0]}x{self.shape[1]} bucket")
+        valid = np.array([h, w], np.int32)
+        out = self._compiled(pad_to(left, self.shape), pad_to(right, self.shape), valid, self.variables)
+        return np.asarray(out)[:h, :w]
+
+
+_COMPILED: dict = {}
+
+
+def _compiled_key(shape, config, params):
+    variables, net = _model_args(config, params)
+    return (tuple(shape), config, net, id(variables)), variables, net
+
+
+def is_compiled(shape: tuple[int, int], config: StereoConfig, params=None) -> bool:
+    """Whether :func:`compiled_chain` has this bucket and config compiled already."""
+    return _compiled_key(shape, config, params)[0] in _COMPILED
+
+
+def compiled_chain(shape: tuple[int, int], config: StereoConfig, params=None) -> tuple[CompiledChain, bool]:
+    """(the :class:`CompiledChain` of a bucket shape and config, whether it was compiled now).
+    The latest one is kept for the life of the process (a batch of mixed sizes compiles again
+    when the bucket changes; the persistent compilation cache makes that a disk read)."""
+    key, variables, net = _compiled_key(shape, config, params)
+    fresh = key not in _COMPILED
+    if fresh:
+        _COMPILED.clear()           # one bucket at a time: a batch of mixed sizes would hoard memory
+        _COMPILED[key] = CompiledChain(tuple(shape), config, variables, net)
+    return _COMPILED[key], fresh
+
+
+@functools.partial(jax.jit, static_argnames=("config", "net"))
 def _stages_grey(left, right, config, variables=None, net=None):
     return _chain(left, right, config, variables, net, keep=True)
 
@@ -218,7 +309,7 @@ def _model_args(config: StereoConfig, params):
 
 
 def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None,
-              memory_limit_gb=None) -> np.ndarray:
+              memory_limit_gb=None, bucket: bool = True) -> np.ndarray:
     """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
 
     left, right: ``[H, W]`` or ``[H, W, 3]`` arrays (uint8, uint16 or float). config: a
@@ -226,13 +317,23 @@ def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=
     :class:`~stereojax.learned_cost.LearnedModel` when ``config.cost.method == "learned"``.
     memory_limit_gb: refuse frames whose estimated peak memory exceeds this many GiB
     (default: ``STEREOJAX_MEMORY_LIMIT_GB``, else 70 % of the available memory; see
-    :mod:`stereojax.memory`). Raises :class:`StereoInputError` / :class:`ConfigError` on bad
-    input and :class:`MemoryBudgetError` before allocating a chain that would not fit.
+    :mod:`stereojax.memory`). bucket: pad the pair to its size bucket
+    (:func:`stereojax.compile_cache.bucket_shape`) so that nearby sizes share one compiled
+    program, and crop back (the result equals the unpadded one away from the padding); False
+    compiles for the exact size. Raises :class:`StereoInputError` / :class:`ConfigError` on
+    bad input and :class:`MemoryBudgetError` before allocating a chain that would not fit.
     """
     config = config or StereoConfig()
     variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb)
-    return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
+    if not bucket:
+        return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
+    from .compile_cache import bucket_shape
+
+    shape = bucket_shape(*gl.shape)
+    valid = np.array(gl.shape, np.int32)
+    out = disparity_padded(pad_to(gl, shape), pad_to(gr, shape), valid, config, variables, net)
+    return np.asarray(out)[:gl.shape[0], :gl.shape[1]]
 
 
 def stages(left: Any, right: Any, config: StereoConfig | None = None, params=None,

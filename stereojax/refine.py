@@ -18,16 +18,21 @@ def wta(cost: jax.Array) -> jax.Array:
     return jnp.argmin(cost, axis=-1).astype(jnp.int32)
 
 
-def right_cost_from_left(cost: jax.Array, invalid: float = 1.0) -> jax.Array:
+def right_cost_from_left(cost: jax.Array, invalid: float = 1.0, valid_width=None) -> jax.Array:
     """Right-view volume from the left one: C_R[y, x, d] = C_L[y, x + d, d].
 
-    Entries with x + d >= W get ``invalid``. Returns ``f32[H, W, D]``.
+    Entries with x + d >= W (or >= ``valid_width``, the real width of a pair padded on the
+    right) get ``invalid``. Returns ``f32[H, W, D]``.
     """
     h, w, max_disp = cost.shape
     # per-disparity [H, W] slices (padding a slice, not the volume, keeps memory at one volume
     # and lets XLA fuse the skew into a consumer such as argmin)
     cols = [jnp.pad(cost[:, d:, d], ((0, 0), (0, d)), constant_values=invalid) for d in range(max_disp)]
-    return jnp.stack(cols, axis=-1)
+    vol = jnp.stack(cols, axis=-1)
+    if valid_width is None:
+        return vol
+    inside = jnp.arange(w)[:, None] + jnp.arange(max_disp)[None, :] < valid_width      # [W, D]
+    return jnp.where(inside[None], vol, invalid)
 
 
 def lr_check(disp_left: jax.Array, disp_right: jax.Array, max_disp: int,

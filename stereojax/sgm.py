@@ -62,7 +62,15 @@ def _gradient_big(grey, dy, dx, threshold):
     return big & (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
 
 
-def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0):
+def _predecessor_real(mask, dy, dx):
+    """bool[H, W]: the path predecessor p - r of each pixel is a real pixel (inside the image and
+    the ``mask`` of real pixels of a padded pair); where it is not, the path starts afresh."""
+    h, w = mask.shape
+    padded = jnp.pad(mask, 1, constant_values=False)
+    return padded[1 - dy: 1 - dy + h, 1 - dx: 1 - dx + w]
+
+
+def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0, pred=None):
     """Add one path that moves along y (dy = +1 down, -1 up) to ``total`` f32[H, W, D].
 
     big_left: bool[H, W]; big_right: bool[H, W] gradient map of the right image (None:
@@ -78,6 +86,8 @@ def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0):
             prev = jnp.concatenate([jnp.zeros_like(prev[:1]), prev[:-1]], axis=0)
         elif shift == -1:
             prev = jnp.concatenate([prev[1:], jnp.zeros_like(prev[:1])], axis=0)
+        if pred is not None:   # predecessor in the padding of a bucketed pair: start afresh (L = C)
+            prev = jnp.where(jax.lax.dynamic_index_in_dim(pred, y, 0, keepdims=False)[:, None], prev, 0.0)
         bl = jax.lax.dynamic_index_in_dim(big_left, y, 0, keepdims=False)
         br = None
         if big_right is not None:
@@ -93,7 +103,7 @@ def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0):
     return jax.lax.scan(body, (init, total), jnp.arange(h))[0][1]
 
 
-def _column_path(cost, total, big_left, big_right, cfg, dx):
+def _column_path(cost, total, big_left, big_right, cfg, dx, pred=None):
     """Add one horizontal path (dx = +1 left to right, -1 right to left) to ``total``."""
     h, w, max_disp = cost.shape
     if big_right is not None:
@@ -103,6 +113,8 @@ def _column_path(cost, total, big_left, big_right, cfg, dx):
     def body(carry, i):
         prev, total = carry
         x = i if dx == 1 else w - 1 - i
+        if pred is not None:
+            prev = jnp.where(jax.lax.dynamic_index_in_dim(pred, x, 1, keepdims=False)[:, None], prev, 0.0)
         bl = jax.lax.dynamic_index_in_dim(big_left, x, 1, keepdims=False)
         br = None
         if big_right is not None:
@@ -119,10 +131,13 @@ def _column_path(cost, total, big_left, big_right, cfg, dx):
     return jax.lax.scan(body, (init, total), jnp.arange(w))[0][1]
 
 
-def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg) -> jax.Array:
+def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, mask=None) -> jax.Array:
     """Semi-global matching of the left-view cost ``f32[H, W, D]``; returns ``f32[H, W, D]``.
 
     left, right: ``f32[H, W]`` grey images (for the adaptive penalties). cfg: SGMConfig.
+    mask: ``bool[H, W]`` real pixels of a pair padded to a size bucket (None: all real); every
+    path starts afresh at the edge of the real pixels, so they get exactly the result of the
+    unpadded pair.
     """
     if cfg.directions == 0:
         return cost
@@ -131,14 +146,19 @@ def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg) -> jax.Array:
     def right_big(dy, dx):
         return _gradient_big(right, dy, dx, thr) if cfg.adaptive else None
 
+    def pred(dy, dx):
+        return None if mask is None else _predecessor_real(mask, dy, dx)
+
     total = jnp.zeros_like(cost)
     for dx in (1, -1):
-        total = _column_path(cost, total, _gradient_big(left, 0, dx, thr), right_big(0, dx), cfg, dx)
+        total = _column_path(cost, total, _gradient_big(left, 0, dx, thr), right_big(0, dx), cfg, dx,
+                             pred=pred(0, dx))
     for dy in (1, -1):
         total = _row_path(cost, total, _gradient_big(left, dy, 0, thr), right_big(dy, 0), cfg, dy,
-                          p1_scale=cfg.vertical_factor)
+                          p1_scale=cfg.vertical_factor, pred=pred(dy, 0))
     if cfg.directions == 8:
         for dy, dx in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
             # the predecessor of column x on the previous row is x - dx: shift the carry by dx
-            total = _row_path(cost, total, _gradient_big(left, dy, dx, thr), None, cfg, dy, shift=dx)
+            total = _row_path(cost, total, _gradient_big(left, dy, dx, thr), None, cfg, dy, shift=dx,
+                              pred=pred(dy, dx))
     return total / cfg.directions

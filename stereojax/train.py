@@ -26,7 +26,10 @@ import optax
 
 from . import checkpoint, losses
 from .config import _from_dict
-from .errors import CheckpointError, ConfigError, TrainingError
+from .errors import ConfigError, TrainingError
+# the shipped-model registry lives in stereojax.models (the inference path does not import
+# this module); re-exported here for existing callers
+from .models import SHIPPED, WEIGHTS_DIR, load_model, shipped_weights, weights_for_input  # noqa: F401
 from .nets import MatchNet, NetConfig, init_params, similarity
 from .sampling import PatchData, SamplerConfig, build_patch_data, sample_batch
 
@@ -292,48 +295,3 @@ def _preview(cfg: TrainConfig, state, sample, rows: int = 64, cols: int = 320, m
     vol = learned_cost(cfg.net, variables, gl, gr, md, 16)
     return colorize_disparity(np.asarray(jnp.argmin(vol, -1)).astype(np.float32), md)
 
-
-WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-
-
-def shipped_weights(dataset: str = "kitti2015") -> Path:
-    """Path of the pretrained weights shipped in the package for ``dataset``."""
-    path = WEIGHTS_DIR / f"{dataset}_downsize_relaxed.msgpack"
-    if not path.is_file():
-        have = sorted(p.name for p in WEIGHTS_DIR.glob("*.msgpack")) if WEIGHTS_DIR.is_dir() else []
-        raise CheckpointError(f"no shipped weights for {dataset} ({path.name}); shipped: {have or 'none'}")
-    return path
-
-
-#: data sets with a shipped model (stereojax/weights/<name>_downsize_relaxed.msgpack)
-SHIPPED = ("kitti2015", "middlebury")
-
-
-def weights_for_input(width: int, height: int, dataset: str | None = None) -> Path | None:
-    """The shipped model for an input: the data set's own when ``dataset`` is given (KITTI 2012
-    uses the KITTI 2015 model), else by shape: KITTI-like wide road frames (width >= 2.5 x
-    height, KITTI is 3.3) -> the KITTI 2015 model, other pairs -> the Middlebury model.
-    None when that model is not shipped."""
-    if dataset is not None:
-        kind = "kitti2015" if dataset.startswith("kitti") else "middlebury"
-    else:
-        kind = "kitti2015" if width >= 2.5 * height else "middlebury"
-    path = WEIGHTS_DIR / f"{kind}_downsize_relaxed.msgpack"
-    return path if path.is_file() else None
-
-
-def load_model(path, expect_net: NetConfig | None = None):
-    """:class:`LearnedModel` (architecture + variables) from a checkpoint file (training
-    checkpoint or shipped weights)."""
-    from .learned_cost import LearnedModel
-
-    stored = checkpoint.read_config(path)
-    net = _from_dict(NetConfig, stored["net"]).validate()
-    if expect_net is not None and net != expect_net:
-        raise CheckpointError(f"checkpoint {path} is for network {dataclasses.asdict(net)}, "
-                              f"expected {dataclasses.asdict(expect_net)}")
-    variables = init_params(net, jax.random.PRNGKey(0))
-    # restores only these two entries (a training checkpoint also holds opt_state and step)
-    template = {"params": variables["params"], "batch_stats": variables["batch_stats"]}
-    state, _ = checkpoint.load(path, template)
-    return LearnedModel(net, state)

@@ -10,7 +10,7 @@ import pytest
 
 from stereojax.cli import main
 from stereojax.errors import CheckpointError
-from stereojax.train import WEIGHTS_DIR as WEIGHTS
+from stereojax.models import WEIGHTS_DIR as WEIGHTS
 
 from .test_pipeline import _shifted_pair
 
@@ -37,10 +37,12 @@ def test_predict_writes_disparity_depth_and_timings(pair_files, tmp_path, capsys
                             "--baseline", 0.54, "--focal", 721.5, "--ply"], capsys)
     assert code == 0, stdout
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(["disparity.png", "disparity_color.png", "depth.png", "depth.npy",
+    assert names == sorted(["disparity.png", "disparity.pfm", "disparity_color.png", "depth.png", "depth.npy",
                             "points.ply", "config.json", "timings.json"])
     disp = cv2.imread(str(out / "disparity.png"), cv2.IMREAD_UNCHANGED)
     assert disp.dtype == np.uint16
+    from stereojax.data.io import read_pfm
+    np.testing.assert_allclose(read_pfm(out / "disparity.pfm"), disp / 256.0, atol=1 / 256)
     # the constant shift (4 px) is recovered away from the left band
     np.testing.assert_allclose(disp[:, 20:] / 256.0, 4.0, atol=0.5)
     depth = np.load(out / "depth.npy")
@@ -157,7 +159,7 @@ def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):
     import argparse
 
     from stereojax.cli import _resolve_method
-    from stereojax.train import WEIGHTS_DIR, weights_for_input
+    from stereojax.models import WEIGHTS_DIR, weights_for_input
 
     kitti = WEIGHTS_DIR / "kitti2015_downsize_relaxed.msgpack"
     mb = WEIGHTS_DIR / "middlebury_downsize_relaxed.msgpack"

@@ -54,7 +54,8 @@ def test_stages_are_consistent():
     assert st["cost"].shape == (40, 64, 10)
     assert set(np.unique(st["labels"])) <= {0, 1, 2}
     np.testing.assert_array_equal(st["disp_wta"], np.argmin(st["cost_final"], -1))
-    np.testing.assert_allclose(st["disparity"], stereojax.disparity(left, right, stereojax.preset("census", 10)))
+    cfg = stereojax.preset("census", 10)
+    np.testing.assert_allclose(st["disparity"], stereojax.disparity(left, right, cfg, bucket=False))
 
 
 def test_inputs_are_not_mutated_and_colour_is_accepted():

@@ -112,6 +112,8 @@ def _check_complete(folder: Path, expected: set[str] | None = None) -> dict:
             json.loads(p.read_text())
         elif ext == ".npy":
             assert np.load(p).ndim == 2
+        elif ext == ".pfm":
+            assert io.read_pfm(p).ndim == 2                # checks the header and the body size
         elif ext == ".ply":
             data = p.read_bytes()
             head_end = data.index(b"end_header\n") + len(b"end_header\n")
@@ -282,7 +284,7 @@ def test_kitti_folder_without_gt_predict_works_evaluate_says_what_is_missing(tmp
                        "--out", tmp_path / "p", *FAST], capsys)
     assert code == 0
     assert set(_check_complete(tmp_path / "p")["complete"]) == {
-        "disparity.png", "disparity_color.png", "config.json", "timings.json"}
+        "disparity.png", "disparity.pfm", "disparity_color.png", "config.json", "timings.json"}
     code, _, err = _cli(["evaluate", "--data", root, "--dataset", "kitti2015", *FAST, "--out", tmp_path / "e"],
                         capsys, "KITTI folder with images but no GT (evaluate)")
     assert code == 2 and "no noc ground truth for 2 frame(s): 000000, 000001; nothing to evaluate" in _one_line(err)
@@ -328,7 +330,7 @@ def test_config_keys(pair, tmp_path, capsys, case, cmd, text, match):
 # ---- checkpoints -------------------------------------------------------------------------------
 
 def _shipped():
-    from stereojax.train import shipped_weights
+    from stereojax.models import shipped_weights
 
     try:
         return shipped_weights("kitti2015")
@@ -414,7 +416,8 @@ def _full_disk(monkeypatch, fail_from: int):
 
 @pytest.mark.parametrize("fail_from, survivors", [
     (1, set()),                                           # the first output already fails
-    (3, {"disparity.png", "disparity_color.png"}),        # config.json fails: the two PNGs are complete
+    # config.json fails: the PNGs and the PFM (written through a file object, not counted) are complete
+    (3, {"disparity.png", "disparity.pfm", "disparity_color.png"}),
 ])
 def test_full_disk_one_line_exit_5_no_partial_file(pair, tmp_path, capsys, monkeypatch, fail_from, survivors):
     out = tmp_path / "out"
@@ -469,6 +472,7 @@ def test_memory_guard_refuses_a_4k_pair_before_allocating(monkeypatch):
         raise AssertionError("the jitted chain must not run")
 
     monkeypatch.setattr(pipeline, "disparity_grey", never)
+    monkeypatch.setattr(pipeline, "disparity_padded", never)
     monkeypatch.setattr(pipeline, "_stages_grey", never)
     left = np.zeros((2160, 3840), np.uint8)
     cfg = stereojax.preset("census", 228)
