@@ -103,6 +103,19 @@ def stage_timings(left, right, cfg, repeats=3):
     return rows
 
 
+def peak_rss_gib() -> float:
+    """This process's peak resident set size, GiB: VmHWM of /proc/self/status (the high-water
+    mark of this program's own memory; ``ru_maxrss`` of a child would also count what its
+    parent held when it forked), else ``ru_maxrss``."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 2 ** 20
+    except (OSError, ValueError, IndexError):
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
+
+
 def _chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
     """Compile and run the chain of ``--method`` (best: learned with the shipped KITTI model)
     on the bench pair in this (fresh) process; warm time, compile time and peak RSS."""
@@ -127,19 +140,17 @@ def _chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
         chain(gl, gr)
         runs.append(time.perf_counter() - t0)
     return {"warm_s": float(np.median(runs)), "compile_s": compile_s,
-            "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20,
-            "backend": jax.default_backend(), "source": src}
+            "peak_rss_gib": peak_rss_gib(), "backend": jax.default_backend(), "source": src}
 
 
-def _child(code: str, env=None) -> tuple[dict | None, float, float, str]:
+def _child(code: str, env=None) -> tuple[dict | None, float, str]:
     """Run ``python -c code`` in a fresh process: (its last stdout line as JSON or None, wall
-    seconds, peak RSS GiB, last stderr line)."""
+    seconds, last stderr line)."""
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)
     out, err = proc.communicate()
     wall = time.perf_counter() - t0
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2 ** 20   # max over children so far
     result = None
     if proc.returncode == 0 and out.strip():
         try:
@@ -147,14 +158,14 @@ def _child(code: str, env=None) -> tuple[dict | None, float, float, str]:
         except json.JSONDecodeError:
             result = None
     last_err = err.strip().splitlines()[-1] if err.strip() else ""
-    return result, wall, peak, last_err
+    return result, wall, last_err
 
 
 def chain_memory(max_disp: int, method: str) -> dict:
     """Warm time, compile time and peak RSS of the whole chain in a fresh child process."""
     code = ("import json;from stereojax.bench import _chain_child;"
             f"print(json.dumps(_chain_child({max_disp}, {method!r})))")
-    res, _, _, err = _child(code, {**os.environ, "STEREOJAX_CACHE_DIR": "off"})
+    res, _, err = _child(code, {**os.environ, "STEREOJAX_CACHE_DIR": "off"})
     return res if res is not None else {"error": err or "child failed"}
 
 
@@ -169,21 +180,18 @@ def process_timings(max_disp: int, method: str, left_path: Path, right_path: Pat
                 f"rc = main(['predict', {str(left_path)!r}, {str(right_path)!r}, '--out', "
                 f"{str(work / ('out_' + method))!r}, '--max-disp', '{max_disp}', '--method', {method!r}]); "
                 f"t = json.load(open({str(work / ('out_' + method) / 'timings.json')!r})); "
-                "print(json.dumps({'rc': rc, **t}))")
+                "from stereojax.bench import peak_rss_gib; "
+                "print(json.dumps({'rc': rc, 'peak_rss_gib': peak_rss_gib(), **t}))")
         t0 = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, env=env)
-        _, status, usage = os.wait4(proc.pid, 0)
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                              check=False)
         wall = time.perf_counter() - t0
-        stdout = proc.stdout.read()
-        stderr = proc.stderr.read()
-        proc.stdout.close()
-        proc.stderr.close()
         try:
-            inner = json.loads(stdout.strip().splitlines()[-1])
+            inner = json.loads(proc.stdout.strip().splitlines()[-1])
         except (json.JSONDecodeError, IndexError):
-            inner = {"error": stderr.strip().splitlines()[-1] if stderr.strip() else "failed"}
-        out[name] = {"wall_s": wall, "peak_rss_gib": usage.ru_maxrss / 2 ** 20, **inner}
+            inner = {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed",
+                     "peak_rss_gib": float("nan")}
+        out[name] = {"wall_s": wall, **inner}
     return out
 
 

@@ -110,26 +110,32 @@ def naive_dense_cost(net: NetConfig, variables, fl, fr, max_disp: int) -> jax.Ar
     return jnp.stack(cols, axis=-1)
 
 
-def _head_at(model, variables, a: jax.Array, b: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
+def _head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
     """``f32[H, W, K]``: head cost 1 - s at the disparities ``cand`` ``i32[H, W, K]``.
 
-    a, b: the split first layer of the left and right view ``f32[H, W, C1]``. Rows go through
-    ``lax.map`` a few at a time, so the ``[rows, W, K, C1]`` pre-activation stays small.
+    fl, fr: tower features of the left and right view ``f32[H, W, F]``. The split first layer
+    is computed a few rows at a time (at most ``rows_per_batch``, and at most 64 MB of
+    pre-activation ``[rows, W, K, C1]``) inside ``lax.map``, so neither the projections of the
+    whole image (``2 x [H, W, C1]``, 2 GB on a KITTI frame) nor the pre-activations are ever
+    held at once; the work is the same as projecting once per image.
     """
-    w, c1 = a.shape[1], a.shape[2]
-    rows_per_batch = max(1, min(rows_per_batch, (64 << 20) // (w * cand.shape[-1] * c1 * 4)))
+    w, k = fl.shape[1], cand.shape[-1]
+    c1 = model.cfg.widths[0]
+    rows_per_batch = max(1, min(rows_per_batch, (64 << 20) // (w * k * c1 * 4)))
 
     def row(args):
-        at, bt, ct = args                                                   # [W, C1], [W, C1], [W, K]
+        fl_r, fr_r, ct = args                                               # [W, F], [W, F], [W, K]
+        at, bt = model.apply(variables, fl_r, fr_r, method=MatchNet.project)   # [W, C1]
         cols = jnp.maximum(jnp.arange(w)[:, None] - ct, 0)
         logit = model.apply(variables, at[:, None, :] + bt[cols], method=MatchNet.finish)
         return 1.0 - jax.nn.sigmoid(logit)
 
-    return jax.lax.map(row, (a, b, cand), batch_size=rows_per_batch)
+    return jax.lax.map(row, (fl, fr, cand), batch_size=rows_per_batch)
 
 
-def _head_at_pixels(model, variables, a, b, ys, xs, cand, chunk: int = 2048) -> jax.Array:
-    """``f32[M, K]``: head cost at pixels (ys, xs) ``i32[M]`` and disparities ``cand`` ``i32[M, K]``."""
+def _head_at_pixels(model, variables, fl, fr, ys, xs, cand, chunk: int = 2048) -> jax.Array:
+    """``f32[M, K]``: head cost at pixels (ys, xs) ``i32[M]`` and disparities ``cand`` ``i32[M, K]``
+    (features ``f32[H, W, F]`` gathered, then projected: no whole-image projections)."""
     m, k = cand.shape
     chunks = -(-m // chunk)
     pad = chunks * chunk - m
@@ -139,8 +145,9 @@ def _head_at_pixels(model, variables, a, b, ys, xs, cand, chunk: int = 2048) -> 
 
     def one(args):
         y, x, c = args                                                       # [n], [n], [n, K]
-        hpre = a[y, x][:, None, :] + b[y[:, None], jnp.maximum(x[:, None] - c, 0)]
-        return 1.0 - jax.nn.sigmoid(model.apply(variables, hpre, method=MatchNet.finish))
+        at, bt = model.apply(variables, fl[y, x], fr[y[:, None], jnp.maximum(x[:, None] - c, 0)],
+                             method=MatchNet.project)                        # [n, C1], [n, K, C1]
+        return 1.0 - jax.nn.sigmoid(model.apply(variables, at[:, None, :] + bt, method=MatchNet.finish))
 
     return jax.lax.map(one, (padded(ys), padded(xs), padded(cand))).reshape(chunks * chunk, k)[:m]
 
@@ -154,9 +161,8 @@ def pruned_dense_cost(net: NetConfig, variables, fl: jax.Array, fr: jax.Array, c
     per pixel; an index >= ``max_disp`` is ignored.
     """
     model = MatchNet(net)
-    a, b = model.apply(variables, fl, fr, method=MatchNet.project)            # [H, W, C1]
-    h, w, _ = a.shape
-    costs = _head_at(model, variables, a, b, jnp.minimum(candidates, max_disp - 1), rows_per_tile)
+    h, w, _ = fl.shape
+    costs = _head_at(model, variables, fl, fr, jnp.minimum(candidates, max_disp - 1), rows_per_tile)
     yy, xx = jnp.mgrid[:h, :w]
     vol = jnp.full((h, w, max_disp), fill, jnp.float32)
     return vol.at[yy[..., None], xx[..., None], candidates].set(costs, mode="drop")
@@ -176,22 +182,25 @@ def candidate_config(config):
         sgm=dataclasses.replace(config.sgm, p1=c.candidate_p1, p2=c.candidate_p2))
 
 
-def candidate_volume(left: jax.Array, right: jax.Array, config, mask=None) -> jax.Array:
+def candidate_volume(left: jax.Array, right: jax.Array, config, valid=None) -> jax.Array:
     """``f32[H, W, D]``: census + CBCA + SGM cost of :func:`candidate_config` (lower is better).
-    mask: real pixels of a padded pair (see :func:`stereojax.pipeline.real_pixels`)."""
+    valid: ``i32[2]`` real (rows, columns) of a pair padded to its size bucket."""
     from . import aggregation, cost as cost_mod
     from .pipeline import _arms
     from .sgm import sgm
 
     c = candidate_config(config)
     vol = cost_mod.census_cost(left, right, c.max_disp, c.cost.census_radius)
-    vol = aggregation.cbca(vol, _arms(left, c, mask), c.cbca.iterations_before, c.cbca.arm_length)
-    return sgm(vol, left, right, c.sgm, mask)
+    from .pipeline import real_pixels
+
+    vol = aggregation.cbca(vol, _arms(left, c, real_pixels(left.shape, valid)), c.cbca.iterations_before,
+                           c.cbca.arm_length)
+    return sgm(vol, left, right, c.sgm, None if valid is None else (0, valid[0], 0, valid[1]))
 
 
-def census_candidates(left: jax.Array, right: jax.Array, config, k: int, mask=None) -> jax.Array:
+def census_candidates(left: jax.Array, right: jax.Array, config, k: int, valid=None) -> jax.Array:
     """``i32[H, W, K]``: the K disparities of lowest :func:`candidate_volume` cost, best first."""
-    return jax.lax.top_k(-candidate_volume(left, right, config, mask), k)[1].astype(jnp.int32)
+    return jax.lax.top_k(-candidate_volume(left, right, config, valid), k)[1].astype(jnp.int32)
 
 
 def adaptive_dense_cost(net: NetConfig, variables, fl, fr, cand_vol: jax.Array, config,
@@ -213,14 +222,18 @@ def adaptive_dense_cost(net: NetConfig, variables, fl, fr, cand_vol: jax.Array, 
     d = config.max_disp
     k1, k2 = min(c.candidates, d), min(max(c.unsure_candidates, c.candidates), d)
     model = MatchNet(net)
-    a, b = model.apply(variables, fl, fr, method=MatchNet.project)            # [H, W, C1]
-    h, w, _ = a.shape
-    cand = jax.lax.top_k(-cand_vol, k1)[1].astype(jnp.int32)                  # [H, W, K], best first
-    cost = _head_at(model, variables, a, b, cand, c.rows_per_tile)
+    h, w, _ = fl.shape
+    m = int(c.unsure_share * h * w) if k2 > k1 else 0
+    # one top-K2 of the whole volume (a top_k of the gathered rows of the chosen pixels is
+    # several times slower on the CPU)
+    ranked = jax.lax.top_k(-cand_vol, k2 if m else k1)[1].astype(jnp.int32)  # [H, W, K2], best first
+    # a barrier keeps XLA from fusing the ranking into the head's loop (measured: 1.5x slower)
+    ranked = jax.lax.optimization_barrier(ranked)
+    cand = ranked[..., :k1]
+    cost = _head_at(model, variables, fl, fr, cand, c.rows_per_tile)
     yy, xx = jnp.mgrid[:h, :w]
     vol = jnp.full((h, w, d), fill, jnp.float32).at[yy[..., None], xx[..., None], cand].set(cost)
-    m = int(c.unsure_share * h * w)
-    if m == 0 or k2 <= k1:
+    if m == 0:
         return vol
     unsure = cost.min(axis=-1)                                                # best head cost found
     if valid is not None:
@@ -229,11 +242,11 @@ def adaptive_dense_cost(net: NetConfig, variables, fl, fr, cand_vol: jax.Array, 
         unsure = jnp.where(real_pixels((h, w), valid), unsure, -1.0)          # padding: never chosen
     pix = jnp.argsort(-unsure.reshape(-1), stable=True)[:m]                    # least sure first
     ys, xs = pix // w, pix % w
-    more = jax.lax.top_k(-cand_vol.reshape(h * w, d)[pix], k2)[1][:, k1:].astype(jnp.int32)   # [M, K2-K]
+    more = ranked.reshape(h * w, -1)[pix, k1:]                                # [M, K2 - K]
     if valid is not None:   # the share is of the real pixels
         m_real = jnp.floor(c.unsure_share * valid[0] * valid[1]).astype(jnp.int32)
         more = jnp.where((jnp.arange(m) < m_real)[:, None], more, d)
-    more_cost = _head_at_pixels(model, variables, a, b, ys, xs, jnp.minimum(more, d - 1))
+    more_cost = _head_at_pixels(model, variables, fl, fr, ys, xs, jnp.minimum(more, d - 1))
     return vol.at[ys[:, None], xs[:, None], more].set(more_cost, mode="drop")
 
 
@@ -272,15 +285,12 @@ def learned_volume(net: NetConfig, variables, left: jax.Array, right: jax.Array,
     """
     c = config.cost
     d = config.max_disp
-    from .pipeline import real_pixels
-
-    mask = real_pixels(left.shape, valid)
-    fl, fr = tower_features(net, variables, left, right, valid)
+    fl, fr = jax.lax.optimization_barrier(tower_features(net, variables, left, right, valid))
     if net.head == "cosine":
         return cosine_cost(fl, fr, d)
     if not c.candidates:
         return dense_cost(net, variables, fl, fr, d, c.rows_per_tile)
-    return adaptive_dense_cost(net, variables, fl, fr, candidate_volume(left, right, config, mask),
+    return adaptive_dense_cost(net, variables, fl, fr, candidate_volume(left, right, config, valid),
                                config, valid=valid)
 
 

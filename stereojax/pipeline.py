@@ -132,17 +132,20 @@ def _arms(ref, config: StereoConfig, mask=None):
     return aggregation.cross_arms(ref, config.cbca.tau, config.cbca.arm_length)
 
 
-def _view_chain(cost, ref, other, config: StereoConfig, view: str, mask=None):
-    """CBCA -> SGM -> CBCA for one view. Returns dict of volumes."""
-    arms = _arms(ref, config, mask)
+def _view_chain(cost, ref, other, config: StereoConfig, view: str, valid=None):
+    """CBCA -> SGM -> CBCA for one view. Returns dict of volumes. valid: ``i32[2]`` real
+    (rows, columns) of a pair padded on the right and bottom (None: not padded)."""
+    arms = _arms(ref, config, real_pixels(ref.shape, valid))
     c1 = aggregation.cbca(cost, arms, config.cbca.iterations_before, config.cbca.arm_length)
+    w = ref.shape[1]
     if view == "left":
-        c2 = sgm(c1, ref, other, config.sgm, mask)
+        real = None if valid is None else (0, valid[0], 0, valid[1])
+        c2 = sgm(c1, ref, other, config.sgm, real)
     else:
         # right view: reuse the left-view recurrences on mirrored images (x -> W - 1 - x turns
-        # "match at x + d" into "match at x' - d")
-        mirrored = sgm(c1[:, ::-1], ref[:, ::-1], other[:, ::-1], config.sgm,
-                       None if mask is None else mask[:, ::-1])
+        # "match at x + d" into "match at x' - d"); mirrored, the padding is on the left
+        real = None if valid is None else (0, valid[0], w - valid[1], w)
+        mirrored = sgm(c1[:, ::-1], ref[:, ::-1], other[:, ::-1], config.sgm, real)
         c2 = mirrored[:, ::-1]
     c3 = aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
     return c1, c2, c3
@@ -177,7 +180,7 @@ def chain_from_volume(vol: jax.Array, left: jax.Array, right: jax.Array, config:
     -> sub-pixel -> median -> bilateral, on the left-view volume ``f32[H, W, D]``."""
     d = config.max_disp
     mask = real_pixels(left.shape, valid)
-    c_cbca, c_sgm, c_final = _view_chain(vol, left, right, config, "left", mask)
+    c_cbca, c_sgm, c_final = _view_chain(vol, left, right, config, "left", valid)
     disp_wta = refine.wta(c_final)
     out = {"disp_wta": disp_wta}
     if keep:
@@ -194,7 +197,7 @@ def chain_from_volume(vol: jax.Array, left: jax.Array, right: jax.Array, config:
                 vol_r = refine.right_cost_from_left(vol, cost_mod.INVALID_COST, vw)
             else:
                 vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
-            c_right = _view_chain(vol_r, right, left, config, "right", mask)[2]
+            c_right = _view_chain(vol_r, right, left, config, "right", valid)[2]
         disp_right = refine.wta(c_right)
         labels = refine.lr_check(disp, disp_right.astype(jnp.float32), d, config.refine.lr_tolerance)
         if mask is not None:    # padding never serves as a source of the filling

@@ -1,4 +1,4 @@
-"""Semi-global matching (Hirschmueller 2008) along 4 or 8 paths with ``lax.scan``.
+"""Semi-global matching (Hirschmueller 2008) along 4 or 8 paths with ``lax.fori_loop``.
 
 For a path direction r, with C the matching cost ``f32[H, W, D]``:
 
@@ -10,7 +10,7 @@ and the result is the mean of L_r over the paths (so it stays on the scale of C)
 starts at the image border with L_r = C. Horizontal paths loop over x with an ``[H, D]``
 carry; vertical and diagonal paths loop over y with a ``[W, D]`` carry (a diagonal path
 shifts that carry by one column per row). Every path adds its L_r into one accumulator
-volume in place (the accumulator is part of the scan carry and updated with
+volume in place (the accumulator is part of the loop carry and updated with
 ``dynamic_update_slice``), so the whole of SGM needs about one volume of extra memory.
 
 Adaptive penalties (MC-CNN): with D1 = |I_L(p) - I_L(p - r)| and D2 = |I_R(p - d) -
@@ -62,15 +62,7 @@ def _gradient_big(grey, dy, dx, threshold):
     return big & (ys >= 0) & (ys < h) & (xs >= 0) & (xs < w)
 
 
-def _predecessor_real(mask, dy, dx):
-    """bool[H, W]: the path predecessor p - r of each pixel is a real pixel (inside the image and
-    the ``mask`` of real pixels of a padded pair); where it is not, the path starts afresh."""
-    h, w = mask.shape
-    padded = jnp.pad(mask, 1, constant_values=False)
-    return padded[1 - dy: 1 - dy + h, 1 - dx: 1 - dx + w]
-
-
-def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0, pred=None):
+def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0, real=None):
     """Add one path that moves along y (dy = +1 down, -1 up) to ``total`` f32[H, W, D].
 
     big_left: bool[H, W]; big_right: bool[H, W] gradient map of the right image (None:
@@ -79,15 +71,20 @@ def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0, 
     h, w, max_disp = cost.shape
     match_col = jnp.maximum(jnp.arange(w)[:, None] - jnp.arange(max_disp)[None, :], 0)   # [W, D]
 
-    def body(carry, i):
+    # rows r0 .. r1 - 1 are real (all without padding); the path runs over them only, so it
+    # starts afresh where it enters the real pixels
+    r0, r1 = (0, h) if real is None else (real[0], real[1])
+
+    def body(i, carry):
         prev, total = carry
-        y = i if dy == 1 else h - 1 - i
+        y = r0 + i if dy == 1 else r1 - 1 - i
         if shift == 1:
             prev = jnp.concatenate([jnp.zeros_like(prev[:1]), prev[:-1]], axis=0)
         elif shift == -1:
             prev = jnp.concatenate([prev[1:], jnp.zeros_like(prev[:1])], axis=0)
-        if pred is not None:   # predecessor in the padding of a bucketed pair: start afresh (L = C)
-            prev = jnp.where(jax.lax.dynamic_index_in_dim(pred, y, 0, keepdims=False)[:, None], prev, 0.0)
+        if real is not None and shift:   # a diagonal predecessor in the padding columns
+            x_prev = jnp.arange(w) - shift
+            prev = jnp.where(((x_prev < real[2]) | (x_prev >= real[3]))[:, None], 0.0, prev)
         bl = jax.lax.dynamic_index_in_dim(big_left, y, 0, keepdims=False)
         br = None
         if big_right is not None:
@@ -97,24 +94,25 @@ def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0, 
         out = _path_step(prev, c, p1, p2)
         row = jax.lax.dynamic_index_in_dim(total, y, 0, keepdims=False)
         total = jax.lax.dynamic_update_index_in_dim(total, row + out, y, 0)
-        return (out, total), None
+        return out, total
 
     init = jnp.zeros((w, max_disp), cost.dtype)
-    return jax.lax.scan(body, (init, total), jnp.arange(h))[0][1]
+    return jax.lax.fori_loop(0, r1 - r0, body, (init, total))[1]
 
 
-def _column_path(cost, total, big_left, big_right, cfg, dx, pred=None):
+def _column_path(cost, total, big_left, big_right, cfg, dx, real=None):
     """Add one horizontal path (dx = +1 left to right, -1 right to left) to ``total``."""
     h, w, max_disp = cost.shape
     if big_right is not None:
         # padded[:, D + x'] = big_right[:, max(x', -D)...]: columns left of the image repeat 0
         padded = jnp.pad(big_right, ((0, 0), (max_disp, 0)), mode="edge")
 
-    def body(carry, i):
+    # columns c0 .. c1 - 1 are real: the path runs over them only (see _row_path)
+    c0, c1 = (0, w) if real is None else (real[2], real[3])
+
+    def body(i, carry):
         prev, total = carry
-        x = i if dx == 1 else w - 1 - i
-        if pred is not None:
-            prev = jnp.where(jax.lax.dynamic_index_in_dim(pred, x, 1, keepdims=False)[:, None], prev, 0.0)
+        x = c0 + i if dx == 1 else c1 - 1 - i
         bl = jax.lax.dynamic_index_in_dim(big_left, x, 1, keepdims=False)
         br = None
         if big_right is not None:
@@ -125,19 +123,19 @@ def _column_path(cost, total, big_left, big_right, cfg, dx, pred=None):
         out = _path_step(prev, c, p1, p2)
         col = jax.lax.dynamic_index_in_dim(total, x, 1, keepdims=False)
         total = jax.lax.dynamic_update_index_in_dim(total, col + out, x, 1)
-        return (out, total), None
+        return out, total
 
     init = jnp.zeros((h, max_disp), cost.dtype)
-    return jax.lax.scan(body, (init, total), jnp.arange(w))[0][1]
+    return jax.lax.fori_loop(0, c1 - c0, body, (init, total))[1]
 
 
-def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, mask=None) -> jax.Array:
+def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, real=None) -> jax.Array:
     """Semi-global matching of the left-view cost ``f32[H, W, D]``; returns ``f32[H, W, D]``.
 
     left, right: ``f32[H, W]`` grey images (for the adaptive penalties). cfg: SGMConfig.
-    mask: ``bool[H, W]`` real pixels of a pair padded to a size bucket (None: all real); every
-    path starts afresh at the edge of the real pixels, so they get exactly the result of the
-    unpadded pair.
+    real: (first row, end row, first column, end column) of the real pixels of a pair padded to
+    a size bucket (traced integers; None: all real); the paths run over them only, so they get
+    exactly the result of the unpadded pair (the padding keeps 0).
     """
     if cfg.directions == 0:
         return cost
@@ -146,19 +144,16 @@ def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, mask=None) -> j
     def right_big(dy, dx):
         return _gradient_big(right, dy, dx, thr) if cfg.adaptive else None
 
-    def pred(dy, dx):
-        return None if mask is None else _predecessor_real(mask, dy, dx)
-
     total = jnp.zeros_like(cost)
     for dx in (1, -1):
         total = _column_path(cost, total, _gradient_big(left, 0, dx, thr), right_big(0, dx), cfg, dx,
-                             pred=pred(0, dx))
+                             real=real)
     for dy in (1, -1):
         total = _row_path(cost, total, _gradient_big(left, dy, 0, thr), right_big(dy, 0), cfg, dy,
-                          p1_scale=cfg.vertical_factor, pred=pred(dy, 0))
+                          p1_scale=cfg.vertical_factor, real=real)
     if cfg.directions == 8:
         for dy, dx in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
             # the predecessor of column x on the previous row is x - dx: shift the carry by dx
             total = _row_path(cost, total, _gradient_big(left, dy, dx, thr), None, cfg, dy, shift=dx,
-                              pred=pred(dy, dx))
+                              real=real)
     return total / cfg.directions
