@@ -159,10 +159,12 @@ class Setup:
     # ---- scoring -----------------------------------------------------------------------------
 
     def chain(self, max_disp: int, head: str):
-        """The learned chain (``preset("learned")``) with this setup's pruning (cosine: exact)."""
+        """The learned chain (``preset("learned")``) with this setup's pruning: the head on the K
+        best census candidates of every pixel, not adaptive (cosine: exact)."""
         base = stereojax.preset("learned", max_disp)
         k = 0 if head == "cosine" else min(self.candidates, max_disp)
-        return dataclasses.replace(base, cost=dataclasses.replace(base.cost, candidates=k)).validate()
+        cost = dataclasses.replace(base.cost, candidates=k, unsure_share=0.0, unsure_candidates=0)
+        return dataclasses.replace(base, cost=cost).validate()
 
     def score_model(self, run: Path, dataset: str) -> dict:
         """Scores of a trained model on the test frames of ``dataset`` (cached in the run folder)."""

@@ -1,7 +1,8 @@
 """Disparity error of a trained network in the full chain, beside the census chain, on KITTI 2015.
 
 Command:  .venv/bin/python experiments/learned_eval.py WEIGHTS [--frames 000021,000022]
-                [--candidates 0|K] [--p1 0.5 --p2 8.0 --cbca 2] [--out experiments/results/learned_kitti2015.json]
+                [--candidates 0|K] [--unsure-share 0.2 --unsure-candidates 16] [--p1 0.5 --p2 8.0 --cbca 2]
+                [--out experiments/results/learned_kitti2015.json]
 Running time here (2 cores): exact mode ~4-5 min per KITTI frame (the downsize head is about
 70 TFLOP per frame), pruned mode with K candidates about K / 228 of that, census ~2 s.
 Prints per frame the > 3 px error (non-occluded GT, dense output) of both chains and the
@@ -31,7 +32,10 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("weights")
     ap.add_argument("--frames", default="000021,000022,000023")
-    ap.add_argument("--candidates", type=int, default=0)
+    ap.add_argument("--candidates", type=int, default=0, help="0 = exact head; K = pruned mode")
+    ap.add_argument("--unsure-share", type=float, default=0.0,
+                    help="adaptive pruned mode: share of pixels that get --unsure-candidates")
+    ap.add_argument("--unsure-candidates", type=int, default=0)
     ap.add_argument("--p1", type=float, default=0.5)
     ap.add_argument("--p2", type=float, default=8.0)
     ap.add_argument("--cbca", type=int, default=2)
@@ -40,7 +44,8 @@ def main():
     model = stereojax.load_model(args.weights)
     base = stereojax.preset("learned", 228)
     cfg = dataclasses.replace(
-        base, cost=dataclasses.replace(base.cost, candidates=args.candidates),
+        base, cost=dataclasses.replace(base.cost, candidates=args.candidates, unsure_share=args.unsure_share,
+                                       unsure_candidates=args.unsure_candidates),
         cbca=dataclasses.replace(base.cbca, iterations_before=args.cbca),
         sgm=dataclasses.replace(base.sgm, p1=args.p1, p2=args.p2)).validate()
     census = stereojax.preset("census", 228)

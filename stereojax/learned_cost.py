@@ -203,6 +203,21 @@ def census_candidates(left: jax.Array, right: jax.Array, config, k: int, valid=N
     return jax.lax.top_k(-candidate_volume(left, right, config, valid), k)[1].astype(jnp.int32)
 
 
+def _ks(config) -> tuple[int, int]:
+    """(K for every pixel, K2 for the least sure share; K2 == K when not adaptive)."""
+    c, d = config.cost, config.max_disp
+    k1 = min(c.candidates, d)
+    k2 = min(max(c.unsure_candidates, c.candidates), d) if c.unsure_share > 0 else k1
+    return k1, k2
+
+
+def rank_candidates(cand_vol: jax.Array, config) -> jax.Array:
+    """``i32[H, W, K2]``: the disparities of lowest candidate cost, best first (K2 as
+    :func:`adaptive_dense_cost` needs; one top_k of the whole volume: a top_k of the gathered
+    rows of the unsure pixels alone is several times slower on the CPU)."""
+    return jax.lax.top_k(-cand_vol, _ks(config)[1])[1].astype(jnp.int32)
+
+
 def adaptive_dense_cost(net: NetConfig, variables, fl, fr, cand_vol: jax.Array, config,
                         fill: float = 1.0, valid=None) -> jax.Array:
     """PRUNED MODE, adaptive (not exact): ``f32[H, W, D]`` with the head evaluated
@@ -218,15 +233,19 @@ def adaptive_dense_cost(net: NetConfig, variables, fl, fr, cand_vol: jax.Array, 
     pixels, and padding pixels are never chosen, so the real pixels get exactly the choice of
     the unpadded pair.
     """
+    return ranked_dense_cost(net, variables, fl, fr, rank_candidates(cand_vol, config), config, fill, valid)
+
+
+def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, config,
+                      fill: float = 1.0, valid=None) -> jax.Array:
+    """:func:`adaptive_dense_cost` from the ranked candidates ``i32[H, W, K2]``
+    (:func:`rank_candidates`)."""
     c = config.cost
     d = config.max_disp
-    k1, k2 = min(c.candidates, d), min(max(c.unsure_candidates, c.candidates), d)
+    k1, k2 = _ks(config)
     model = MatchNet(net)
     h, w, _ = fl.shape
     m = int(c.unsure_share * h * w) if k2 > k1 else 0
-    # one top-K2 of the whole volume (a top_k of the gathered rows of the chosen pixels is
-    # several times slower on the CPU)
-    ranked = jax.lax.top_k(-cand_vol, k2 if m else k1)[1].astype(jnp.int32)  # [H, W, K2], best first
     # a barrier keeps XLA from fusing the ranking into the head's loop (measured: 1.5x slower)
     ranked = jax.lax.optimization_barrier(ranked)
     cand = ranked[..., :k1]

@@ -165,36 +165,3 @@ def init_params(cfg: NetConfig, key) -> dict:
     x = jnp.zeros((2, p, p, 1), jnp.float32)
     return MatchNet(cfg).init(key, x, x, train=False)
 
-
-BN_EPSILON = 1e-5   # flax.linen.BatchNorm's default, used by FeatureTower
-
-
-def folded_tower(variables, layers: int) -> list[tuple[jax.Array, jax.Array]]:
-    """The tower at inference as ``layers`` (kernel ``f32[3, 3, C_in, F]``, bias ``f32[F]``)
-    pairs: batch norm with its running statistics folded into the convolution (exact algebra:
-    scale * (conv(x) - mean) / sqrt(var + eps) + bias)."""
-    p, s = variables["params"]["tower"], variables["batch_stats"]["tower"]
-    out = []
-    for i in range(layers):
-        g = p[f"bn{i}"]["scale"] / jnp.sqrt(s[f"bn{i}"]["var"] + BN_EPSILON)
-        out.append((p[f"conv{i}"]["kernel"] * g, p[f"bn{i}"]["bias"] - s[f"bn{i}"]["mean"] * g))
-    return out
-
-
-def tower_inference(cfg: NetConfig, variables, images: jax.Array) -> jax.Array:
-    """:meth:`MatchNet.features` at inference (running statistics), as matrix products.
-
-    ``f32[B, h, w, 1]`` -> ``f32[B, h - 2L, w - 2L, F]``. Each 3x3 valid convolution is one
-    ``[B h w, 9 C] x [9 C, F]`` product of the 9 shifted copies (im2col), with batch norm folded
-    into it; on the CPU this runs about 2-3x faster than XLA's convolution of the same layer.
-    Equal to the Flax module up to float rounding (tested).
-    """
-    x = images
-    for i, (kernel, bias) in enumerate(folded_tower(variables, cfg.layers)):
-        b, h, w, c = x.shape
-        cols = jnp.concatenate([x[:, dy:dy + h - 2, dx:dx + w - 2, :] for dy in range(3) for dx in range(3)],
-                               axis=-1)                                       # [B, h-2, w-2, 9C]
-        x = cols @ kernel.reshape(9 * c, -1) + bias
-        if i < cfg.layers - 1 or cfg.final_relu:
-            x = jax.nn.relu(x)
-    return x

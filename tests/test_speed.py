@@ -1,5 +1,5 @@
 """The fast paths of the chain: size buckets (pad, run, crop back exactly), the adaptive pruned
-head against the exact head, the tower as matrix products, the persistent compilation cache."""
+head against the exact head, the persistent compilation cache, the inference-only imports."""
 
 import dataclasses
 import os
@@ -17,7 +17,7 @@ from stereojax import learned_cost
 from stereojax.compile_cache import bucket_shape
 from stereojax.config import CostConfig, StereoConfig
 from stereojax.data import load_kitti2015
-from stereojax.nets import MatchNet, init_params, net_preset, tower_inference
+from stereojax.nets import init_params, net_preset
 
 TINY = dataclasses.replace(net_preset("downsize", 8), widths=(6, 6, 6, 6))
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,13 +97,6 @@ def test_adaptive_head_evaluates_k_candidates_and_more_for_the_least_sure_share(
     chosen = np.argsort(-best, kind="stable")[:int(share * h * w)]
     assert seen[chosen[:, None], order[chosen, :k2]].all()
     assert seen.sum() == h * w * k1 + len(chosen) * (k2 - k1)              # and nothing else
-
-
-def test_tower_as_matrix_products_equals_flax_module():
-    v = _tiny_variables(2)
-    x = jax.random.normal(jax.random.PRNGKey(3), (2, 21, 33, 1))
-    ref = MatchNet(TINY).apply(v, x, False, method=MatchNet.features)
-    np.testing.assert_allclose(np.asarray(tower_inference(TINY, v, x)), np.asarray(ref), atol=1e-5)
 
 
 @pytest.mark.slow
