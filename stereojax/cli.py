@@ -511,8 +511,9 @@ def cmd_demo(args) -> int:
 
 def cmd_train(args) -> int:
     from .data.datasets import load_dataset
-    from .train import TrainConfig, fit, train_preset
+    from .train import TrainConfig, fit, maybe_initialize_distributed, train_preset
 
+    maybe_initialize_distributed()
     out = _check_out_dir(Path(args.out))
     if args.config:
         try:
@@ -533,7 +534,7 @@ def cmd_train(args) -> int:
                      "val_frames": [s.name for s in val_samples or []]}}
     print(f"training {cfg.net.head} head ({cfg.loss}, delta {cfg.delta}) on {len(train_samples)} "
           f"{args.dataset} images, {cfg.steps} steps -> {out}", flush=True)
-    summary = fit(cfg, train_samples, val_samples, out, resume=args.resume, info=info)
+    summary = fit(cfg, train_samples, val_samples, out, resume=args.resume, info=info, devices=args.devices)
     print(json.dumps(summary, indent=2, default=_json_default))
     return 0
 
@@ -624,6 +625,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--seed", type=int)
     sp.add_argument("--config", help="JSON TrainConfig (overrides the preset options)")
     sp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.msgpack")
+    sp.add_argument("--devices", type=int, help="data-parallel over this many devices (default: all); "
+                    "the batch must divide by it")
     sp.add_argument("--out", required=True)
     sp.set_defaults(func=cmd_train)
 

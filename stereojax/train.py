@@ -154,12 +154,47 @@ def _errors(cfg, s_pos, s_neg):
     return 0.5 * ((similarity(cfg.net, s_pos) <= 0.5).mean() + (similarity(cfg.net, s_neg) >= 0.5).mean())
 
 
-@functools.partial(jax.jit, static_argnames=("cfg",))
-def train_step(state, data: PatchData, cfg: TrainConfig):
-    """One SGD step on the batch of ``state["step"]``; returns (new state, metrics)."""
+def make_mesh(devices: int | None = None):
+    """A one-axis ``("data",)`` mesh of the first ``devices`` devices (None: every device of
+    every process), or None for a single device (the plain, unsharded step)."""
+    from jax.sharding import Mesh
+
+    have = jax.devices()
+    n = len(have) if devices is None else devices
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise ConfigError(f"--devices must be a positive integer, got {devices!r}")
+    if n > len(have):
+        raise ConfigError(f"--devices {n} asks for more devices than the {len(have)} "
+                          f"{jax.default_backend()} device(s) there are")
+    if n == 1:
+        return None
+    return Mesh(np.array(have[:n]), ("data",))
+
+
+def _check_batch(cfg: TrainConfig, mesh) -> None:
+    n = 1 if mesh is None else mesh.size
+    if cfg.batch % n:
+        raise ConfigError(f"batch {cfg.batch} does not divide evenly over {n} devices; use a batch "
+                          f"that is a multiple of {n} or another --devices")
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "mesh"))
+def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None):
+    """One SGD step on the batch of ``state["step"]``; returns (new state, metrics).
+
+    mesh: None (one device) or a ``("data",)`` mesh (:func:`make_mesh`): the global batch is
+    drawn exactly as on one device and split along the mesh, parameters and optimiser state
+    are replicated, and XLA reduces the gradients and the batch-norm statistics over the
+    whole batch, so N devices compute the step of one device (up to float rounding).
+    """
     model = MatchNet(cfg.net)
     key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), state["step"])
     ref, pos, neg = sample_batch(key, data, cfg.batch, cfg.net.patch_size, cfg.sampler)
+    if mesh is not None:
+        from jax.sharding import NamedSharding, PartitionSpec
+
+        split = NamedSharding(mesh, PartitionSpec("data"))
+        ref, pos, neg = (jax.lax.with_sharding_constraint(x, split) for x in (ref, pos, neg))
 
     def loss_fn(params):
         variables = {"params": params, "batch_stats": state["batch_stats"]}
@@ -206,11 +241,13 @@ def _flat(d: dict, prefix: str = "") -> dict:
 
 def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None, out_dir,
         resume: bool = False, progress: bool = True, stop_after: int | None = None,
-        info: dict | None = None) -> dict[str, Any]:
+        info: dict | None = None, devices: int | None = 1) -> dict[str, Any]:
     """Train, checkpointing to ``out_dir/checkpoint.msgpack``; returns a summary dict.
 
     resume: continue from the checkpoint in ``out_dir`` (it must have been made with the same
-    config). stop_after: return after this many steps of this call (for tests).
+    config). stop_after: return after this many steps of this call (for tests). devices: data
+    parallelism over this many devices (None: all; see :func:`train_step`); only process 0
+    of a multi-process run writes checkpoints, logs and TensorBoard.
     """
     from tqdm import tqdm
     from tensorboardX import SummaryWriter
@@ -218,6 +255,9 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     from .data.io import write_json
 
     cfg.validate()
+    mesh = make_mesh(devices)
+    _check_batch(cfg, mesh)
+    main_process = jax.process_index() == 0
     out = Path(out_dir)
     ckpt = out / "checkpoint.msgpack"
     data = build_patch_data(train_samples, cfg.net.patch_size, cfg.sampler)
@@ -233,8 +273,14 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
             raise ConfigError(f"cannot resume {ckpt}: it was made with another training config ({shown}"
                               f"{', ...' if len(differ) > 3 else ''}); use another --out or the same settings")
         state, _ = checkpoint.load(ckpt, state, expect_net=wanted["net"])
-    write_json(out / "config.json", _state_config(cfg, info))
-    writer = SummaryWriter(str(out / "tb"))
+    if mesh is not None:   # parameters, optimiser state and the patch data on every device
+        from jax.sharding import NamedSharding, PartitionSpec
+
+        every = NamedSharding(mesh, PartitionSpec())
+        state, data = jax.device_put(state, every), jax.device_put(data, every)
+    if main_process:
+        write_json(out / "config.json", _state_config(cfg, info))
+    writer = SummaryWriter(str(out / "tb")) if main_process else _NoWriter()
     start = int(state["step"])
     end = cfg.steps if stop_after is None else min(cfg.steps, start + stop_after)
     bar = tqdm(range(start, end), initial=start, total=cfg.steps, desc="train", unit="step",
@@ -243,7 +289,7 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     samples_per_step = 3 * cfg.batch
     last_good = start
     for step in bar:
-        new_state, m = train_step(state, data, cfg)
+        new_state, m = train_step(state, data, cfg, mesh)
         loss = float(m["loss"])
         if not math.isfinite(loss):
             writer.close()
@@ -263,19 +309,60 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
             last_val = {"step": done, "loss": float(vl), "error": float(ve)}
             writer.add_scalar("val/loss", float(vl), done)
             writer.add_scalar("val/patch_error", float(ve), done)
-            writer.add_image("val/disparity_wta", _preview(cfg, state, val_samples[0]), done,
-                             dataformats="HWC")
+            if main_process:
+                writer.add_image("val/disparity_wta", _preview(cfg, state, val_samples[0]), done,
+                                 dataformats="HWC")
         if done % cfg.checkpoint_every == 0 or done == end:
-            checkpoint.save(ckpt, state, _state_config(cfg, info))
+            if main_process:
+                checkpoint.save(ckpt, state, _state_config(cfg, info))
             last_good = done
     writer.close()
     elapsed = time.perf_counter() - t0
     summary = {"steps": int(state["step"]), "seconds": elapsed,
                "samples_per_s": (end - start) * samples_per_step / max(elapsed, 1e-9),
                "final_train": history[-1] if history else None, "validation": last_val,
-               "train_pixels": data.size, "val_pixels": val.size if val is not None else 0}
-    write_json(out / "train_summary.json", summary)
+               "train_pixels": data.size, "val_pixels": val.size if val is not None else 0,
+               "devices": 1 if mesh is None else mesh.size}
+    if main_process:
+        write_json(out / "train_summary.json", summary)
     return summary
+
+
+class _NoWriter:
+    """TensorBoard writer of the processes other than 0 of a multi-process run: writes nothing."""
+
+    def add_scalar(self, *a, **k):
+        pass
+
+    def add_image(self, *a, **k):
+        pass
+
+    def close(self):
+        pass
+
+
+def maybe_initialize_distributed() -> bool:
+    """``jax.distributed.initialize`` when the standard variables are set:
+    ``JAX_COORDINATOR_ADDRESS`` (host:port of process 0), ``JAX_NUM_PROCESSES`` and
+    ``JAX_PROCESS_ID``. Returns whether it did. Called by ``stereojax train``."""
+    import os
+
+    names = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
+    found = [n for n in names if os.environ.get(n)]
+    if not found:
+        return False
+    if len(found) != len(names):
+        missing = ", ".join(n for n in names if n not in found)
+        raise ConfigError(f"multi-process training needs {', '.join(names)}; {missing} not set")
+    try:
+        n, pid = int(os.environ["JAX_NUM_PROCESSES"]), int(os.environ["JAX_PROCESS_ID"])
+    except ValueError:
+        raise ConfigError("JAX_NUM_PROCESSES and JAX_PROCESS_ID must be integers") from None
+    # cross-process collectives of the CPU backend (GPUs use NCCL whatever this says)
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(coordinator_address=os.environ["JAX_COORDINATOR_ADDRESS"],
+                               num_processes=n, process_id=pid)
+    return True
 
 
 def _preview(cfg: TrainConfig, state, sample, rows: int = 64, cols: int = 320, max_disp: int = 64):
