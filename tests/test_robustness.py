@@ -531,7 +531,7 @@ def test_available_memory_is_read():
 
 # ---- SIGKILL: predict leaves complete files or none --------------------------------------------
 
-_PREDICT_OUTPUTS = {"disparity.png", "disparity_color.png", "depth.png", "depth.npy", "points.ply",
+_PREDICT_OUTPUTS = {"disparity.png", "disparity.pfm", "disparity_color.png", "depth.png", "depth.npy", "points.ply",
                     "config.json", "timings.json"}
 
 
