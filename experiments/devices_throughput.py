@@ -1,0 +1,53 @@
+"""Training throughput of the data-parallel step on 1 and N devices (patches/s, warm).
+
+Command:  XLA_FLAGS=--xla_force_host_platform_device_count=2 .venv/bin/python experiments/devices_throughput.py
+Running time here: about a minute. Uses the ``cpu`` preset's network and batch (150 references
++ 150 positives + 150 negatives per step) on KITTI 2015 000001 (or a synthetic pair without
+../shared/data); prints one line per device count. On forced host devices of a 2-core CPU the
+numbers show that the sharded step runs, not a speed-up (the devices share the same cores).
+"""
+
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import jax  # noqa: E402
+from jax.sharding import NamedSharding, PartitionSpec  # noqa: E402
+
+from stereojax.sampling import build_patch_data  # noqa: E402
+from stereojax.train import init_state, make_mesh, train_preset, train_step  # noqa: E402
+
+
+def main(steps: int = 30):
+    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
+    if root.is_dir():
+        from stereojax.data import load_kitti2015
+        samples = [load_kitti2015(root, "000001")]
+    else:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+        from tests.test_train import _samples
+        samples = _samples()
+    cfg = train_preset("cpu")
+    data = build_patch_data(samples, cfg.net.patch_size, cfg.sampler)
+    for n in range(1, len(jax.devices()) + 1):
+        mesh = make_mesh(n)
+        state = init_state(cfg)
+        d = data
+        if mesh is not None:
+            every = NamedSharding(mesh, PartitionSpec())
+            state, d = jax.device_put(state, every), jax.device_put(data, every)
+        state, _ = train_step(state, d, cfg, mesh)                    # compile
+        jax.block_until_ready(state)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            state, m = train_step(state, d, cfg, mesh)
+        jax.block_until_ready(state)
+        secs = time.perf_counter() - t0
+        print(f"{n} device(s) ({jax.default_backend()}): {steps * 3 * cfg.batch / secs:.0f} patches/s "
+              f"({steps / secs:.1f} steps/s)", flush=True)
+
+
+if __name__ == "__main__":
+    main()
