@@ -29,9 +29,15 @@ class Arms(NamedTuple):
     down: jax.Array
 
 
-def cross_arms(grey: jax.Array, tau: float, arm_length: int) -> Arms:
-    """Arm lengths of every pixel of ``f32[H, W]`` grey image (see module docstring)."""
+def cross_arms(grey: jax.Array, tau: float, arm_length: int, mask=None) -> Arms:
+    """Arm lengths of every pixel of ``f32[H, W]`` grey image (see module docstring).
+
+    mask: ``bool[H, W]`` real pixels of a pair padded to its size bucket (None: all real); no
+    arm reaches into the padding, as none reaches out of an unpadded image.
+    """
     h, w = grey.shape
+    if mask is not None:
+        grey = jnp.where(mask, grey, jnp.float32(1e9))
     big = jnp.float32(1e9)   # out-of-image pixels never join an arm
     padded = jnp.pad(grey, arm_length, constant_values=big)
     arms = []

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import resource
 import subprocess
 import sys
 import time
@@ -104,16 +103,10 @@ def stage_timings(left, right, cfg, repeats=3):
 
 
 def peak_rss_gib() -> float:
-    """This process's peak resident set size, GiB: VmHWM of /proc/self/status (the high-water
-    mark of this program's own memory; ``ru_maxrss`` of a child would also count what its
-    parent held when it forked), else ``ru_maxrss``."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 2 ** 20
-    except (OSError, ValueError, IndexError):
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
+    """This process's peak resident set size, GiB (:func:`stereojax.memory.peak_rss_bytes`)."""
+    from .memory import peak_rss_bytes
+
+    return peak_rss_bytes() / 2 ** 30
 
 
 def _chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
@@ -182,15 +175,9 @@ def process_timings(max_disp: int, method: str, left_path: Path, right_path: Pat
                 f"t = json.load(open({str(work / ('out_' + method) / 'timings.json')!r})); "
                 "from stereojax.bench import peak_rss_gib; "
                 "print(json.dumps({'rc': rc, 'peak_rss_gib': peak_rss_gib(), **t}))")
-        t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                              check=False)
-        wall = time.perf_counter() - t0
-        try:
-            inner = json.loads(proc.stdout.strip().splitlines()[-1])
-        except (json.JSONDecodeError, IndexError):
-            inner = {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed",
-                     "peak_rss_gib": float("nan")}
+        inner, wall, err = _child(code, env)
+        if inner is None:
+            inner = {"error": err or "failed", "peak_rss_gib": float("nan")}
         out[name] = {"wall_s": wall, **inner}
     return out
 
@@ -369,7 +356,7 @@ def format_bench(r: dict) -> str:
                      f"| {'; '.join(checks)} |")
     lines += ["", "(wall time of the whole `stereojax predict` process: interpreter start, imports, loading, "
               "compiling or reading the compiled chain from the cache, the run, writing outputs.)", "",
-              f"## Where the time of `best` goes (each stage jitted alone, warm)", "",
+              "## Where the time of `best` goes (each stage jitted alone, warm)", "",
               "| stage | warm s | compile s |", "|---|---|---|"]
     lines += [f"| {k} | {v['warm_s']:.2f} | {v['compile_s']:.1f} |" for k, v in prof["stages"].items()]
     lines += ["", f"Head: {prof['head_tflop']:.1f} TFLOP per frame at {prof['evals_per_pixel']:g} evaluations per "

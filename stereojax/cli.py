@@ -137,10 +137,10 @@ class _Phases:
         if not self.quiet:
             print(f"stereojax: {what} ...", end="", flush=True)
 
-    def done(self, note: str = "") -> float:
+    def done(self) -> float:
         secs = time.perf_counter() - self._t0
         if not self.quiet:
-            print(f" {secs:.1f} s{note}", flush=True)
+            print(f" {secs:.1f} s", flush=True)
         return secs
 
 
@@ -157,13 +157,14 @@ def _run_pipeline(left, right, cfg, model=None, phases: _Phases | None = None):
     phases = phases or _Phases(quiet=True)
     gl, gr = pipeline.prepare_pair(left, right, cfg)
     shape = bucket_shape(*gl.shape)
-    compile_s = 0.0
-    if not pipeline.is_compiled(shape, cfg, model):
+    if pipeline.is_compiled(shape, cfg, model):
+        chain, _ = pipeline.compiled_chain(shape, cfg, model)
+        compile_s = 0.0
+    else:
         phases.start(f"compiling the {cfg.cost.method} chain for {shape[1]}x{shape[0]} "
                      f"(size bucket of {gl.shape[1]}x{gl.shape[0]}), {cfg.max_disp} disparities")
-        pipeline.compiled_chain(shape, cfg, model)
+        chain, _ = pipeline.compiled_chain(shape, cfg, model)
         compile_s = phases.done()
-    chain, _ = pipeline.compiled_chain(shape, cfg, model)
     phases.start(f"computing the disparity of {gl.shape[1]}x{gl.shape[0]}")
     disp = chain(gl, gr)
     secs = phases.done()
@@ -289,21 +290,6 @@ def _predict_inputs(args) -> tuple[list[tuple[str, Path, Path]], bool]:
                            "training/ or testing/ folder, or --pairs FILE")
 
 
-def _current_rss_mb() -> float:
-    """Resident set size of this process now, MiB (0 where /proc is not available)."""
-    try:
-        pages = int(Path("/proc/self/statm").read_text().split()[1])
-        return pages * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
-    except (OSError, ValueError, IndexError):
-        return 0.0
-
-
-def _peak_rss_mb() -> float:
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
 def _predict_one(args, left_p, right_p, out: Path, stem_dir: str, calib, phases):
     from .data.datasets import load_pair
 
@@ -344,6 +330,8 @@ def _predict_batch(args, pairs, out: Path, calib) -> int:
     one line per failed pair (the batch goes on), a summary, exit code 2 if any pair failed."""
     from tqdm import tqdm
 
+    from .memory import current_rss_bytes, peak_rss_bytes
+
     rows, failed, described = [], [], set()
     bar = tqdm(pairs, desc="predict", unit="frame", file=sys.stderr, dynamic_ncols=True)
     t_start = time.perf_counter()
@@ -360,7 +348,7 @@ def _predict_batch(args, pairs, out: Path, calib) -> int:
             tqdm.write(f"stereojax predict: method: {_describe(run_args)}", file=sys.stderr)
         rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
                      "bucket": timings["bucket"], "width": int(disp.shape[1]), "height": int(disp.shape[0]),
-                     "rss_mb": _current_rss_mb()})
+                     "rss_mb": current_rss_bytes() / 2 ** 20})
         bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
     bar.close()
     wall = time.perf_counter() - t_start
@@ -369,7 +357,7 @@ def _predict_batch(args, pairs, out: Path, calib) -> int:
     summary = {"frames": len(pairs), "ok": len(rows), "failed": failed, "wall_s": wall,
                "frames_per_s": len(rows) / wall if wall > 0 else 0.0,
                "frames_per_s_warm": len(rows) / compute if compute > 0 else 0.0,
-               "compile_s": compiles, "peak_rss_mb": _peak_rss_mb(), "per_frame": rows}
+               "compile_s": compiles, "peak_rss_mb": peak_rss_bytes() / 2 ** 20, "per_frame": rows}
     write_json(out / "summary.json", summary)
     print(f"{len(rows)} of {len(pairs)} pairs -> {out}/<frame>/ in {wall:.1f} s "
           f"({summary['frames_per_s']:.2f} frames/s overall, {summary['frames_per_s_warm']:.2f} frames/s "

@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from .compile_cache import real_pixels
 from .nets import MatchNet, NetConfig
 
 
@@ -186,15 +187,12 @@ def candidate_volume(left: jax.Array, right: jax.Array, config, valid=None) -> j
     """``f32[H, W, D]``: census + CBCA + SGM cost of :func:`candidate_config` (lower is better).
     valid: ``i32[2]`` real (rows, columns) of a pair padded to its size bucket."""
     from . import aggregation, cost as cost_mod
-    from .pipeline import _arms
     from .sgm import sgm
 
     c = candidate_config(config)
     vol = cost_mod.census_cost(left, right, c.max_disp, c.cost.census_radius)
-    from .pipeline import real_pixels
-
-    vol = aggregation.cbca(vol, _arms(left, c, real_pixels(left.shape, valid)), c.cbca.iterations_before,
-                           c.cbca.arm_length)
+    arms = aggregation.cross_arms(left, c.cbca.tau, c.cbca.arm_length, real_pixels(left.shape, valid))
+    vol = aggregation.cbca(vol, arms, c.cbca.iterations_before, c.cbca.arm_length)
     return sgm(vol, left, right, c.sgm, None if valid is None else (0, valid[0], 0, valid[1]))
 
 
@@ -256,8 +254,6 @@ def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, conf
         return vol
     unsure = cost.min(axis=-1)                                                # best head cost found
     if valid is not None:
-        from .pipeline import real_pixels
-
         unsure = jnp.where(real_pixels((h, w), valid), unsure, -1.0)          # padding: never chosen
     pix = jnp.argsort(-unsure.reshape(-1), stable=True)[:m]                    # least sure first
     ys, xs = pix // w, pix % w
@@ -275,8 +271,6 @@ def tower_features(net: NetConfig, variables, left: jax.Array, right: jax.Array,
     valid: ``i32[2]`` (rows, columns) of the real image when the pair is padded to a size
     bucket; the normalisation statistics are then taken over that region only.
     """
-    from .pipeline import real_pixels
-
     mask = real_pixels(left.shape, valid)
     if mask is None:
         mask = jnp.ones(left.shape, bool)

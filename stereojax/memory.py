@@ -100,6 +100,29 @@ def _sysconf_available() -> int | None:
         return None
 
 
+def current_rss_bytes() -> int:
+    """Resident set size of this process now (0 where /proc is not available)."""
+    try:
+        return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+def peak_rss_bytes() -> int:
+    """This process's peak resident set size: VmHWM of /proc/self/status (the high-water mark of
+    this program's own memory; ``ru_maxrss`` of a child would also count what its parent held
+    when it forked), else ``ru_maxrss``."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
 def available_bytes() -> int | None:
     """Memory available to this process now (bytes), or None when it cannot be read."""
     found = [b for b in (_meminfo_available(), _cgroup_available()) if b is not None]

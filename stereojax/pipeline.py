@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import aggregation, cost as cost_mod, refine
+from .compile_cache import real_pixels
 from .config import StereoConfig
 from .errors import ConfigError, StereoInputError
 from .sgm import sgm
@@ -124,18 +125,10 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=No
     return gl, gr
 
 
-def _arms(ref, config: StereoConfig, mask=None):
-    """Cross arms of the reference image; with a ``mask`` of real pixels (a pair padded to its
-    size bucket) no arm reaches into the padding, as none reaches out of an unpadded image."""
-    if mask is not None:
-        ref = jnp.where(mask, ref, jnp.float32(1e9))
-    return aggregation.cross_arms(ref, config.cbca.tau, config.cbca.arm_length)
-
-
 def _view_chain(cost, ref, other, config: StereoConfig, view: str, valid=None):
     """CBCA -> SGM -> CBCA for one view. Returns dict of volumes. valid: ``i32[2]`` real
     (rows, columns) of a pair padded on the right and bottom (None: not padded)."""
-    arms = _arms(ref, config, real_pixels(ref.shape, valid))
+    arms = aggregation.cross_arms(ref, config.cbca.tau, config.cbca.arm_length, real_pixels(ref.shape, valid))
     c1 = aggregation.cbca(cost, arms, config.cbca.iterations_before, config.cbca.arm_length)
     w = ref.shape[1]
     if view == "left":
@@ -149,15 +142,6 @@ def _view_chain(cost, ref, other, config: StereoConfig, view: str, valid=None):
         c2 = mirrored[:, ::-1]
     c3 = aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
     return c1, c2, c3
-
-
-def real_pixels(shape, valid):
-    """``bool[H, W]``: the real pixels (rows < valid[0], columns < valid[1]) of a padded pair;
-    None when ``valid`` is None (nothing padded)."""
-    if valid is None:
-        return None
-    h, w = shape
-    return (jnp.arange(h)[:, None] < valid[0]) & (jnp.arange(w)[None, :] < valid[1])
 
 
 def _left_volume(left, right, config: StereoConfig, variables, net, valid=None):
