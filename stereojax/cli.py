@@ -11,6 +11,7 @@ import argparse
 import json
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Sequence
@@ -65,6 +66,7 @@ def _check_out_dir(path: Path) -> Path:
 
 
 _MODELS: dict = {}
+_MODELS_LOCK = threading.Lock()
 
 
 def _resolve_method(args, width: int, height: int, dataset: str | None = None) -> None:
@@ -104,11 +106,12 @@ def _model(args):
         from .models import shipped_weights
 
         weights = str(shipped_weights("kitti2015"))
-    if weights not in _MODELS:
-        from .models import load_model
+    with _MODELS_LOCK:                  # map_frames workers may ask at the same time
+        if weights not in _MODELS:
+            from .models import load_model
 
-        _MODELS[weights] = load_model(weights)
-    return _MODELS[weights]
+            _MODELS[weights] = load_model(weights)
+        return _MODELS[weights]
 
 
 def _describe(args) -> str:
@@ -153,22 +156,33 @@ def _run_pipeline(left, right, cfg, model=None, phases: _Phases | None = None):
     and the bucket."""
     from . import pipeline
     from .compile_cache import bucket_shape
+    from .devices import current_device
 
     phases = phases or _Phases(quiet=True)
+    device = current_device()           # the map_frames worker's device, or None
     gl, gr = pipeline.prepare_pair(left, right, cfg)
     shape = bucket_shape(*gl.shape)
-    if pipeline.is_compiled(shape, cfg, model):
-        chain, _ = pipeline.compiled_chain(shape, cfg, model)
+    if pipeline.is_compiled(shape, cfg, model, device):
+        chain, _ = pipeline.compiled_chain(shape, cfg, model, device)
         compile_s = 0.0
     else:
         phases.start(f"compiling the {cfg.cost.method} chain for {shape[1]}x{shape[0]} "
                      f"(size bucket of {gl.shape[1]}x{gl.shape[0]}), {cfg.max_disp} disparities")
-        chain, _ = pipeline.compiled_chain(shape, cfg, model)
-        compile_s = phases.done()
+        t0 = time.perf_counter()
+        chain, _ = pipeline.compiled_chain(shape, cfg, model, device)
+        phases.done()
+        compile_s = time.perf_counter() - t0
     phases.start(f"computing the disparity of {gl.shape[1]}x{gl.shape[0]}")
     disp = chain(gl, gr)
     secs = phases.done()
-    return disp, {"seconds": secs, "compile_s": compile_s, "bucket": [int(shape[0]), int(shape[1])]}
+    return disp, {"seconds": secs, "compile_s": compile_s, "bucket": [int(shape[0]), int(shape[1])],
+                  "device": str(device if device is not None else _default_device())}
+
+
+def _default_device():
+    import jax
+
+    return jax.devices()[0]
 
 
 def _color_scale(disp, gt=None, gt_valid=None) -> float:
@@ -312,7 +326,10 @@ def _predict_one(args, left_p, right_p, out: Path, stem_dir: str, calib, phases)
 def cmd_predict(args) -> int:
     from .compile_cache import enable
 
+    from .devices import local_devices
+
     pairs, batch = _predict_inputs(args)
+    local_devices(args.devices)          # a bad --devices is refused for one pair too
     out = _check_out_dir(Path(args.out))
     calib = _calibration(args)
     enable()
@@ -332,31 +349,44 @@ def _predict_batch(args, pairs, out: Path, calib) -> int:
 
     from .memory import current_rss_bytes, peak_rss_bytes
 
-    rows, failed, described = [], [], set()
-    bar = tqdm(pairs, desc="predict", unit="frame", file=sys.stderr, dynamic_ncols=True)
-    t_start = time.perf_counter()
-    for name, left_p, right_p in bar:
+    from .devices import local_devices, map_frames
+
+    devices = local_devices(args.devices)
+
+    def work(pair):
+        name, left_p, right_p = pair
         try:
-            disp, timings, _, run_args = _predict_one(args, left_p, right_p, out, name, calib,
-                                                      _Phases(quiet=True))
+            return pair, _predict_one(args, left_p, right_p, out, name, calib, _Phases(quiet=True)), None
         except (StereoError, OSError) as exc:
-            failed.append({"frame": name, "left": str(left_p), "right": str(right_p), "error": str(exc)})
-            tqdm.write(f"stereojax predict: error: {name}: {exc}", file=sys.stderr)
-            continue
-        if _describe(run_args) not in described:
-            described.add(_describe(run_args))
-            tqdm.write(f"stereojax predict: method: {_describe(run_args)}", file=sys.stderr)
-        rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
-                     "bucket": timings["bucket"], "width": int(disp.shape[1]), "height": int(disp.shape[0]),
-                     "rss_mb": current_rss_bytes() / 2 ** 20})
-        bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
-    bar.close()
+            return pair, None, exc
+
+    rows, failed, described = [], [], set()
+    with tqdm(total=len(pairs), desc="predict", unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
+        if len(devices) > 1:
+            tqdm.write(f"stereojax predict: {len(devices)} devices, one frame each at a time", file=sys.stderr)
+        t_start = time.perf_counter()
+        for (name, left_p, right_p), result, exc in map_frames(work, pairs, devices):
+            bar.update(1)
+            if exc is not None:
+                failed.append({"frame": name, "left": str(left_p), "right": str(right_p), "error": str(exc)})
+                tqdm.write(f"stereojax predict: error: {name}: {exc}", file=sys.stderr)
+                continue
+            disp, timings, _, run_args = result
+            if _describe(run_args) not in described:
+                described.add(_describe(run_args))
+                tqdm.write(f"stereojax predict: method: {_describe(run_args)}", file=sys.stderr)
+            rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
+                         "device": timings["device"],
+                         "bucket": timings["bucket"], "width": int(disp.shape[1]), "height": int(disp.shape[0]),
+                         "rss_mb": current_rss_bytes() / 2 ** 20})
+            bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
     wall = time.perf_counter() - t_start
     compute = sum(r["seconds"] for r in rows)
     compiles = sum(r["compile_s"] for r in rows)
-    summary = {"frames": len(pairs), "ok": len(rows), "failed": failed, "wall_s": wall,
+    summary = {"frames": len(pairs), "ok": len(rows), "failed": failed, "devices": len(devices),
+               "wall_s": wall,
                "frames_per_s": len(rows) / wall if wall > 0 else 0.0,
-               "frames_per_s_warm": len(rows) / compute if compute > 0 else 0.0,
+               "frames_per_s_warm": len(rows) * len(devices) / compute if compute > 0 else 0.0,
                "compile_s": compiles, "peak_rss_mb": peak_rss_bytes() / 2 ** 20, "per_frame": rows}
     write_json(out / "summary.json", summary)
     print(f"{len(rows)} of {len(pairs)} pairs -> {out}/<frame>/ in {wall:.1f} s "
@@ -390,10 +420,10 @@ def cmd_evaluate(args) -> int:
 
     from . import metrics
     from .baselines import sgbm_disparity
+    from .compile_cache import enable
     from .data import io
     from .data.datasets import load_dataset, search_range
-
-    from .compile_cache import enable
+    from .devices import local_devices, map_frames
 
     out = _check_out_dir(Path(args.out))
     enable()
@@ -401,32 +431,44 @@ def cmd_evaluate(args) -> int:
     items = load_dataset(args.data, args.dataset, frames=frames, gt=args.gt)
     _resolve_method(args, 0, 0, args.dataset)
     print(f"method: {_describe(args)}", file=sys.stderr)
-    per_frame, missing_gt = [], []
-    methods = ["pipeline"] + (["sgbm", "sgbm_unpadded"] if args.sgbm else [])
-    bar = tqdm(items, desc=f"evaluate {args.dataset}", unit="frame", file=sys.stderr)
-    for frame_id, load in bar:
+    devices = local_devices(args.devices)
+    if len(devices) > 1:
+        print(f"{len(devices)} devices, one frame each at a time", file=sys.stderr)
+    model = _model(args)
+
+    def work(item):
+        frame_id, load = item
         sample = load()
         if sample.gt is None:
-            missing_gt.append(frame_id)
-            continue
+            return frame_id, sample, None, None, None
         max_disp = search_range(args.dataset, sample, args.max_disp)
-        cfg = _config(args, max_disp)
-        row = {"frame": frame_id, "max_disp": max_disp}
-        disp, timings = _run_pipeline(sample.left, sample.right, cfg, _model(args))
-        row["pipeline"] = {**metrics.evaluate(disp, sample.gt, sample.gt_valid, fill=args.fill),
-                           "seconds": timings["seconds"], "compile_s": timings["compile_s"]}
-        _write_prediction(out, f"{frame_id}_", disp,
-                          color_max=_color_scale(disp, sample.gt, sample.gt_valid))
-        io.write_error_map(out / f"{frame_id}_error.png", disp, sample.gt, sample.gt_valid)
-        if args.sgbm:
-            for name, pad in (("sgbm", True), ("sgbm_unpadded", False)):
-                t0 = time.perf_counter()
-                d_cv, v_cv = sgbm_disparity(sample.left, sample.right, num_disp=max_disp, pad=pad)
-                secs = time.perf_counter() - t0
-                row[name] = {**metrics.evaluate(d_cv, sample.gt, sample.gt_valid, est_valid=v_cv,
-                                                fill=args.fill), "seconds": secs}
-        per_frame.append(row)
-        bar.set_postfix(bad3=f"{row['pipeline']['bad3']:.2f}%")
+        disp, timings = _run_pipeline(sample.left, sample.right, _config(args, max_disp), model)
+        return frame_id, sample, max_disp, disp, timings
+
+    per_frame, missing_gt = [], []
+    methods = ["pipeline"] + (["sgbm", "sgbm_unpadded"] if args.sgbm else [])
+    with tqdm(total=len(items), desc=f"evaluate {args.dataset}", unit="frame", file=sys.stderr) as bar:
+        for frame_id, sample, max_disp, disp, timings in map_frames(work, items, devices):
+            bar.update(1)
+            if disp is None:
+                missing_gt.append(frame_id)
+                continue
+            row = {"frame": frame_id, "max_disp": max_disp}
+            row["pipeline"] = {**metrics.evaluate(disp, sample.gt, sample.gt_valid, fill=args.fill),
+                               "seconds": timings["seconds"], "compile_s": timings["compile_s"],
+                               "device": timings["device"]}
+            _write_prediction(out, f"{frame_id}_", disp,
+                              color_max=_color_scale(disp, sample.gt, sample.gt_valid))
+            io.write_error_map(out / f"{frame_id}_error.png", disp, sample.gt, sample.gt_valid)
+            if args.sgbm:
+                for name, pad in (("sgbm", True), ("sgbm_unpadded", False)):
+                    t0 = time.perf_counter()
+                    d_cv, v_cv = sgbm_disparity(sample.left, sample.right, num_disp=max_disp, pad=pad)
+                    secs = time.perf_counter() - t0
+                    row[name] = {**metrics.evaluate(d_cv, sample.gt, sample.gt_valid, est_valid=v_cv,
+                                                    fill=args.fill), "seconds": secs}
+            per_frame.append(row)
+            bar.set_postfix(bad3=f"{row['pipeline']['bad3']:.2f}%")
     if missing_gt:
         names = ", ".join(missing_gt[:5]) + (" ..." if len(missing_gt) > 5 else "")
         msg = f"no {args.gt} ground truth for {len(missing_gt)} frame(s): {names}"
@@ -565,6 +607,10 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides the chain "
                         "settings of --method; its cost.method must fit --method)")
 
+    def add_devices(sp):
+        sp.add_argument("--devices", type=int, help="spread the frames over this many local devices, "
+                        "one frame per device at a time (default: all; the results equal one device's)")
+
     sp = sub.add_parser("predict", help="disparity (and depth) of one rectified pair, or of many: "
                         "two folders, a KITTI training/ or testing/ folder, or a list of pairs")
     sp.add_argument("inputs", nargs="*", metavar="INPUT",
@@ -577,6 +623,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--focal", type=float, help="focal length in pixels (for depth)")
     sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")
     sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs calibration)")
+    add_devices(sp)
     add_method(sp)
     sp.set_defaults(func=cmd_predict)
 
@@ -591,6 +638,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--sgbm", action="store_true",
                     help="also score OpenCV StereoSGBM, left-padded and unpadded, in the same run")
     sp.add_argument("--out", default="out/evaluate", help="output folder")
+    add_devices(sp)
     add_method(sp)
     sp.set_defaults(func=cmd_evaluate)
 

@@ -9,6 +9,7 @@ intermediate result for inspection.
 from __future__ import annotations
 
 import functools
+import threading
 from typing import Any
 
 import jax
@@ -260,18 +261,30 @@ def pad_to(grey: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 class CompiledChain:
     """The chain compiled once for a size bucket and a config (ahead of time, so that compiling
     and running can be timed and reported apart). Call it with grey ``f32[H, W]`` images of any
-    size in the bucket; it pads, runs and crops back exactly.
+    size in the bucket; it pads, runs and crops back exactly. device: the device it runs on
+    (None: the default device); the network parameters are copied there once.
     """
 
-    def __init__(self, shape: tuple[int, int], config: StereoConfig, variables=None, net=None):
-        self.shape, self.config, self.variables, self.net = shape, config, variables, net
-        spec = jax.ShapeDtypeStruct(shape, jnp.float32)
-        valid = jax.ShapeDtypeStruct((2,), jnp.int32)
+    def __init__(self, shape: tuple[int, int], config: StereoConfig, variables=None, net=None,
+                 device=None):
+        self.shape, self.config, self.net, self.device = shape, config, net, device
+        sharding = None
+        if device is not None:
+            from jax.sharding import SingleDeviceSharding
+
+            sharding = SingleDeviceSharding(device)
+            variables = None if variables is None else jax.device_put(variables, device)
+        self.variables = variables
+        spec = jax.ShapeDtypeStruct(shape, jnp.float32, sharding=sharding)
+        valid = jax.ShapeDtypeStruct((2,), jnp.int32, sharding=sharding)
         self._split = _split_learned(config, net)
         if self._split:
             self._front = learned_front.lower(spec, spec, valid, config, variables, net).compile()
             fl, fr, ranked = jax.eval_shape(lambda a, b, v: learned_front(a, b, v, config, variables, net),
                                             spec, spec, valid)
+            if sharding is not None:
+                fl, fr, ranked = (jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
+                                  for x in (fl, fr, ranked))
             self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, config, variables, net).compile()
         else:
             self._compiled = disparity_padded.lower(spec, spec, valid, config, variables, net).compile()
@@ -280,8 +293,8 @@ class CompiledChain:
         h, w = left.shape
         if h > self.shape[0] or w > self.shape[1]:
             raise ValueError(f"a {h}x{w} pair does not fit the {self.shape[0]}x{self.shape[1]} bucket")
-        valid = np.array([h, w], np.int32)
-        lp, rp = jnp.asarray(pad_to(left, self.shape)), jnp.asarray(pad_to(right, self.shape))
+        lp, rp = pad_to(left, self.shape), pad_to(right, self.shape)
+        lp, rp, valid = jax.device_put((lp, rp, np.array([h, w], np.int32)), self.device)
         if self._split:
             fl, fr, ranked = self._front(lp, rp, valid, self.variables)
             out = self._back(lp, rp, valid, fl, fr, ranked, self.variables)
@@ -293,26 +306,36 @@ class CompiledChain:
 _COMPILED: dict = {}
 
 
-def _compiled_key(shape, config, params):
+_COMPILED_LOCK = threading.Lock()
+
+
+def _compiled_key(shape, config, params, device=None):
     variables, net = _model_args(config, params)
-    return (tuple(shape), config, net, id(variables)), variables, net
+    return (tuple(shape), config, net, id(variables), device), variables, net
 
 
-def is_compiled(shape: tuple[int, int], config: StereoConfig, params=None) -> bool:
-    """Whether :func:`compiled_chain` has this bucket and config compiled already."""
-    return _compiled_key(shape, config, params)[0] in _COMPILED
+def is_compiled(shape: tuple[int, int], config: StereoConfig, params=None, device=None) -> bool:
+    """Whether :func:`compiled_chain` has this bucket and config compiled already (for this
+    device)."""
+    return _compiled_key(shape, config, params, device)[0] in _COMPILED
 
 
-def compiled_chain(shape: tuple[int, int], config: StereoConfig, params=None) -> tuple[CompiledChain, bool]:
+def compiled_chain(shape: tuple[int, int], config: StereoConfig, params=None,
+                   device=None) -> tuple[CompiledChain, bool]:
     """(the :class:`CompiledChain` of a bucket shape and config, whether it was compiled now).
-    The latest one is kept for the life of the process (a batch of mixed sizes compiles again
-    when the bucket changes; the persistent compilation cache makes that a disk read)."""
-    key, variables, net = _compiled_key(shape, config, params)
-    fresh = key not in _COMPILED
-    if fresh:
-        _COMPILED.clear()           # one bucket at a time: a batch of mixed sizes would hoard memory
-        _COMPILED[key] = CompiledChain(tuple(shape), config, variables, net)
-    return _COMPILED[key], fresh
+    The latest one per device is kept for the life of the process (a batch of mixed sizes
+    compiles again when the bucket changes; the persistent compilation cache makes that a disk
+    read). device: None (the default device) or one of :func:`stereojax.devices.local_devices`;
+    safe to call from the worker threads of :func:`stereojax.devices.map_frames`."""
+    key, variables, net = _compiled_key(shape, config, params, device)
+    with _COMPILED_LOCK:
+        fresh = key not in _COMPILED
+        if fresh:
+            # one bucket per device at a time: a batch of mixed sizes would hoard memory
+            for old in [k for k in _COMPILED if k[-1] == device]:
+                del _COMPILED[old]
+            _COMPILED[key] = CompiledChain(tuple(shape), config, variables, net, device)
+        return _COMPILED[key], fresh
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
