@@ -1,6 +1,7 @@
 """Training throughput of the data-parallel step on 1 and N devices (patches/s, warm).
 
 Command:  XLA_FLAGS=--xla_force_host_platform_device_count=2 .venv/bin/python experiments/devices_throughput.py
+          [--augment]   (with the MC-CNN patch augmentation of ``train --augment``)
 Running time here: about a minute. Uses the ``cpu`` preset's network and batch (150 references
 + 150 positives + 150 negatives per step) on KITTI 2015 000001 (or a synthetic pair without
 ../shared/data); prints one line per device count. On forced host devices of a 2-core CPU the
@@ -20,7 +21,7 @@ from stereojax.sampling import build_patch_data  # noqa: E402
 from stereojax.train import init_state, make_mesh, train_preset, train_step  # noqa: E402
 
 
-def main(steps: int = 30):
+def main(steps: int = 30, augment: bool = False):
     root = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
     if root.is_dir():
         from stereojax.data import load_kitti2015
@@ -30,6 +31,12 @@ def main(steps: int = 30):
         from tests.test_train import _samples
         samples = _samples()
     cfg = train_preset("cpu")
+    if augment:
+        import dataclasses
+
+        from stereojax.sampling import AUGMENT_MCCNN
+
+        cfg = dataclasses.replace(cfg, sampler=dataclasses.replace(cfg.sampler, augment=AUGMENT_MCCNN))
     data = build_patch_data(samples, cfg.net.patch_size, cfg.sampler)
     for n in range(1, len(jax.devices()) + 1):
         mesh = make_mesh(n)
@@ -45,9 +52,10 @@ def main(steps: int = 30):
             state, m = train_step(state, d, cfg, mesh)
         jax.block_until_ready(state)
         secs = time.perf_counter() - t0
-        print(f"{n} device(s) ({jax.default_backend()}): {steps * 3 * cfg.batch / secs:.0f} patches/s "
+        print(f"{n} device(s) ({jax.default_backend()}{', augmented' if augment else ''}): "
+              f"{steps * 3 * cfg.batch / secs:.0f} patches/s "
               f"({steps / secs:.1f} steps/s)", flush=True)
 
 
 if __name__ == "__main__":
-    main()
+    main(augment="--augment" in sys.argv[1:])

@@ -11,12 +11,10 @@ seconds per frame, and writes them to --out.
 
 import argparse
 import dataclasses
-import json
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 

@@ -8,6 +8,7 @@ either the complete file or none.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -48,8 +49,6 @@ def _config(args, max_disp: int):
         return cfg.with_max_disp(max_disp)
     cfg = preset(args.method, max_disp)
     if args.method == "learned" and getattr(args, "exact_head", False):
-        import dataclasses
-
         cfg = dataclasses.replace(cfg, cost=dataclasses.replace(cfg.cost, candidates=0)).validate()
     return cfg
 
@@ -551,8 +550,13 @@ def cmd_train(args) -> int:
         except (OSError, json.JSONDecodeError) as exc:
             raise ConfigError(f"cannot read training config {args.config}: {exc}") from None
     else:
-        over = {k: v for k, v in (("steps", args.steps), ("seed", args.seed), ("delta", args.delta)) if v is not None}
+        over = {k: v for k, v in (("steps", args.steps), ("seed", args.seed), ("delta", args.delta),
+                                  ("lr", args.lr)) if v is not None}
         cfg = train_preset(args.preset, head=args.head, loss=args.loss, **over)
+        if args.augment:
+            from .sampling import AUGMENT_MCCNN
+
+            cfg = dataclasses.replace(cfg, sampler=dataclasses.replace(cfg.sampler, augment=AUGMENT_MCCNN))
     gt = "occ" if args.dataset == "middlebury" else "noc"
 
     def load(frames):
@@ -564,7 +568,14 @@ def cmd_train(args) -> int:
                      "val_frames": [s.name for s in val_samples or []]}}
     print(f"training {cfg.net.head} head ({cfg.loss}, delta {cfg.delta}) on {len(train_samples)} "
           f"{args.dataset} images, {cfg.steps} steps -> {out}", flush=True)
-    summary = fit(cfg, train_samples, val_samples, out, resume=args.resume, info=info, devices=args.devices)
+    init = None
+    if args.init:
+        from .models import SHIPPED, load_model, shipped_weights
+
+        init = load_model(shipped_weights(args.init) if args.init in SHIPPED else args.init)
+        info["init"] = args.init
+    summary = fit(cfg, train_samples, val_samples, out, resume=args.resume, info=info, devices=args.devices,
+                  init=init)
     print(json.dumps(summary, indent=2, default=_json_default))
     return 0
 
@@ -661,6 +672,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--seed", type=int)
     sp.add_argument("--config", help="JSON TrainConfig (overrides the preset options)")
     sp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.msgpack")
+    sp.add_argument("--augment", action="store_true", help="MC-CNN-style patch augmentation (rotation, "
+                    "scale, shear, brightness and contrast; right patches get their own small difference)")
+    sp.add_argument("--init", help="start from these weights (a checkpoint or a shipped model name) "
+                    "instead of random ones; the optimiser and schedule start afresh")
+    sp.add_argument("--lr", type=float, help="initial learning rate (default: the preset's, 0.02)")
     sp.add_argument("--devices", type=int, help="data-parallel over this many devices (default: all); "
                     "the batch must divide by it")
     sp.add_argument("--out", required=True)

@@ -159,13 +159,10 @@ def make_mesh(devices: int | None = None):
     every process), or None for a single device (the plain, unsharded step)."""
     from jax.sharding import Mesh
 
+    from .devices import count
+
     have = jax.devices()
-    n = len(have) if devices is None else devices
-    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-        raise ConfigError(f"--devices must be a positive integer, got {devices!r}")
-    if n > len(have):
-        raise ConfigError(f"--devices {n} asks for more devices than the {len(have)} "
-                          f"{jax.default_backend()} device(s) there are")
+    n = count(devices, have)
     if n == 1:
         return None
     return Mesh(np.array(have[:n]), ("data",))
@@ -216,7 +213,7 @@ def eval_step(state, data: PatchData, cfg: TrainConfig, pairs: int):
     """Patch-level validation: (mean loss, share of misclassified pairs) on a fixed sample."""
     model = MatchNet(cfg.net)
     key = jax.random.PRNGKey(cfg.seed + 7919)
-    ref, pos, neg = sample_batch(key, data, pairs, cfg.net.patch_size, cfg.sampler)
+    ref, pos, neg = sample_batch(key, data, pairs, cfg.net.patch_size, cfg.sampler, augment=False)
     variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
     s_pos, s_neg, _ = _scores(model, variables, ref, pos, neg, False)
     return _pair_losses(cfg, s_pos, s_neg).mean(), _errors(cfg, s_pos, s_neg)
@@ -241,8 +238,12 @@ def _flat(d: dict, prefix: str = "") -> dict:
 
 def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None, out_dir,
         resume: bool = False, progress: bool = True, stop_after: int | None = None,
-        info: dict | None = None, devices: int | None = 1) -> dict[str, Any]:
+        info: dict | None = None, devices: int | None = 1, init=None) -> dict[str, Any]:
     """Train, checkpointing to ``out_dir/checkpoint.msgpack``; returns a summary dict.
+
+    init: a :class:`~stereojax.learned_cost.LearnedModel` (same network) to start from instead
+    of random weights (fine-tuning; the optimiser and the schedule start afresh). A resumed run
+    continues from its checkpoint and ignores ``init``.
 
     resume: continue from the checkpoint in ``out_dir`` (it must have been made with the same
     config). stop_after: return after this many steps of this call (for tests). devices: data
@@ -263,10 +264,17 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     data = build_patch_data(train_samples, cfg.net.patch_size, cfg.sampler)
     val = build_patch_data(val_samples, cfg.net.patch_size, cfg.sampler) if val_samples else None
     state = init_state(cfg)
+    if init is not None and not (resume and ckpt.exists()):
+        if init.net != cfg.net:
+            raise ConfigError(f"--init model has network {dataclasses.asdict(init.net)}, the training "
+                              f"config {dataclasses.asdict(cfg.net)}")
+        state = {**state, "params": init.variables["params"], "batch_stats": init.variables["batch_stats"]}
     if resume and ckpt.exists():
         stored = checkpoint.read_config(ckpt)
         wanted = json.loads(json.dumps(cfg.to_dict()))          # tuples -> lists, as stored
-        there, here = _flat(stored), _flat(wanted)
+        # a checkpoint from before a config field existed has that field's default
+        there = {**_flat(json.loads(json.dumps(TrainConfig().to_dict()))), **_flat(stored)}
+        here = _flat(wanted)
         differ = sorted(k for k in here if there.get(k) != here[k])
         if differ:
             shown = ", ".join(f"{k} = {there.get(k)!r} there, {here[k]!r} here" for k in differ[:3])

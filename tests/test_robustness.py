@@ -18,7 +18,6 @@ import signal
 import subprocess
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import cv2
@@ -27,7 +26,7 @@ import numpy as np
 import pytest
 
 import stereojax
-from stereojax import (CheckpointError, ConfigError, MemoryBudgetError, OutputError, StereoError,
+from stereojax import (CheckpointError, ConfigError, MemoryBudgetError, StereoError,
                        StereoInputError)
 from stereojax import memory
 from stereojax.cli import main

@@ -161,3 +161,20 @@ def test_learned_pipeline_runs_end_to_end(tmp_path):
     assert disp.shape == left.shape and np.all((disp >= 0) & (disp <= 7))
     with pytest.raises(ConfigError, match="needs params"):
         stereojax.disparity(left, right, conf)
+
+
+def test_fit_from_init_starts_at_those_weights_and_refuses_another_network(tmp_path):
+    first = _tiny(steps=12, lr=0.05)
+    fit(first, _samples(), None, tmp_path / "a", progress=False)
+    a = stereojax.load_model(tmp_path / "a" / "checkpoint.msgpack")
+    # from a's weights with a vanishing learning rate: the parameters stay a's, not seed 1's
+    cfg = _tiny(steps=4, seed=1, lr=1e-12)
+    fit(cfg, _samples(), None, tmp_path / "b", progress=False, init=a)
+    b = stereojax.load_model(tmp_path / "b" / "checkpoint.msgpack")
+    fresh = stereojax.train.init_params(cfg.net, jax.random.PRNGKey(1))
+    pa, pb = (jax.tree_util.tree_leaves(m.variables["params"]) for m in (a, b))
+    assert max(float(np.abs(x - y).max()) for x, y in zip(pa, pb)) < 1e-6
+    assert max(float(np.abs(x - y).max()) for x, y in zip(pa, jax.tree_util.tree_leaves(fresh["params"]))) > 1e-3
+    other = dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, features=4))
+    with pytest.raises(ConfigError, match="--init model has network"):
+        fit(other, _samples(), None, tmp_path / "c", progress=False, init=a)

@@ -1,0 +1,193 @@
+"""Coordinate search of the learned chain's CBCA, SGM and refinement settings on TRAINING frames,
+with the learned cost volume of every frame computed once and cached (issue "accuracy", part 3).
+
+Command:  .venv/bin/python experiments/search_chain.py [--dataset kitti2015] [--frames 000001-000020]
+              [--weights kitti2015] [--rounds 2] [--out experiments/results]
+Running time here (2 cores, KITTI): about 15 s per frame for the volume (the shipped pruned
+adaptive head), then per setting about 2.5 s per frame plus 5-10 s compiling (the settings are
+static arguments of the jitted chain).
+
+The volume is the one ``--method best`` computes (``preset("learned")``: the head at the ranked
+census candidates, its candidate chain fixed); the search varies only what comes after it:
+CBCA passes before/after SGM, arm threshold tau and arm length, P1, P2, the gradient reduction
+(q1, q2, threshold), LR tolerance and the median window. Starting from the shipped preset, each
+parameter in turn takes the value of its list that gives the lowest mean > 3 px error (noc GT,
+dense output, as KITTI's table) over the frames; ``--rounds`` passes over all parameters.
+
+The frames must be training frames (see experiments/PROTOCOL.md): the validation frames
+000021-000030 are scored once, afterwards, with ``stereojax evaluate``.
+Writes OUT/chain_search_<dataset>.md (every setting tried, in order) and .json.
+"""
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import functools  # noqa: E402
+
+import jax  # noqa: E402
+
+from stereojax import pipeline  # noqa: E402
+from stereojax.cli import _parse_frames  # noqa: E402
+from stereojax.compile_cache import bucket_shape  # noqa: E402
+from stereojax.config import StereoConfig, preset  # noqa: E402
+from stereojax.data.datasets import load_dataset, search_range  # noqa: E402
+from stereojax.data.io import write_json  # noqa: E402
+from stereojax.learned_cost import ranked_dense_cost  # noqa: E402
+from stereojax.metrics import evaluate  # noqa: E402
+from stereojax.models import load_model, shipped_weights  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+#: (section, field, values tried); the shipped value is always among the candidates
+SPACE = [
+    ("sgm", "p1", [0.25, 0.35, 0.5, 0.7, 1.0]),
+    ("sgm", "p2", [4.0, 6.0, 8.0, 11.0, 15.0]),
+    ("cbca", "iterations_before", [0, 1, 2, 3, 4]),
+    ("cbca", "iterations_after", [0, 1, 2]),
+    ("cbca", "tau", [10.0, 15.0, 20.0, 30.0]),
+    ("cbca", "arm_length", [3, 5, 7, 9]),
+    ("sgm", "q1", [1.5, 3.0, 4.5]),
+    ("sgm", "q2", [3.0, 6.0, 10.0]),
+    ("sgm", "grad_threshold", [8.0, 15.0, 25.0]),
+    ("refine", "lr_tolerance", [0.5, 1.0, 2.0, 3.0]),
+    ("refine", "median_size", [0, 3, 5, 7]),
+]
+
+
+@functools.partial(jax.jit, static_argnames=("config", "net"))
+def _volume(left, right, valid, config, variables, net):
+    fl, fr, ranked = pipeline.learned_front(left, right, valid, config, variables, net)
+    return ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid)
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def _back(vol, left, right, valid, config):
+    return pipeline.chain_from_volume(vol, left, right, config, False, valid)["disparity"]
+
+
+def with_value(cfg: StereoConfig, section: str, name: str, value) -> StereoConfig:
+    sub = dataclasses.replace(getattr(cfg, section), **{name: value})
+    try:
+        return dataclasses.replace(cfg, **{section: sub}).validate()
+    except Exception:          # e.g. p2 < p1: not a valid setting
+        return None
+
+
+def cache_volumes(samples, model, base: StereoConfig, max_disp) -> list:
+    """The learned volume of every sample, computed once: ``[(name, max_disp, left, right,
+    valid, volume, sample)]``, padded to the size bucket. max_disp(sample) -> disparities."""
+    cache, t0 = [], time.perf_counter()
+    for s in samples:
+        md = max_disp(s)
+        cfg = base.with_max_disp(md)
+        gl, gr = pipeline.prepare_pair(s.left, s.right, cfg)
+        shape = bucket_shape(*gl.shape)
+        lp, rp = pipeline.pad_to(gl, shape), pipeline.pad_to(gr, shape)
+        valid = np.array(gl.shape, np.int32)
+        vol = _volume(lp, rp, valid, cfg, model.variables, model.net)
+        cache.append((s.name, md, lp, rp, valid, jax.device_get(vol), s))
+        print(f"volume {s.name} ({gl.shape[1]}x{gl.shape[0]}, {md} disparities): "
+              f"{time.perf_counter() - t0:.0f} s", flush=True)
+    return cache
+
+
+def score(cache, cfg: StereoConfig, threshold: str = "bad3") -> tuple[float, list[float]]:
+    """Mean error (``threshold``: bad2, bad3, ... or "bad2+bad3" for their mean; on the sample's
+    GT) of the chain ``cfg``
+    run on the cached volumes, and the per-frame errors."""
+    errs = []
+    for _, md, lp, rp, valid, vol, s in cache:
+        disp = np.asarray(_back(vol, lp, rp, valid, cfg.with_max_disp(md)))[:valid[0], :valid[1]]
+        m = evaluate(disp, s.gt, s.gt_valid)
+        errs.append(float(np.mean([m[k] for k in threshold.split("+")])))
+    return float(np.mean(errs)), errs
+
+
+def coordinate_search(cache, base: StereoConfig, space=SPACE, rounds: int = 2, threshold: str = "bad3"):
+    """Each parameter of ``space`` in turn takes its best value (lowest mean error over the
+    cached frames), ``rounds`` times over (stopping early when nothing changes).
+    Returns (best config, its error, the shipped config's error, the log of every trial)."""
+    log, seen = [], {}
+
+    def trial(cfg, what):
+        key = cfg.to_json()
+        if key not in seen:
+            t = time.perf_counter()
+            seen[key] = score(cache, cfg, threshold)
+            log.append({"setting": what, threshold: seen[key][0], "per_frame": seen[key][1],
+                        "seconds": time.perf_counter() - t})
+            print(f"{seen[key][0]:6.3f}  {time.perf_counter() - t:5.1f}s  {what}", flush=True)
+        return seen[key][0]
+
+    best = base
+    best_err = start_err = trial(best, "shipped preset")
+    for rnd in range(rounds):
+        changed = False
+        for section, name, values in space:
+            for v in values:
+                cand = with_value(best, section, name, v)
+                if cand is None or cand == best:
+                    continue
+                err = trial(cand, f"round {rnd + 1}: {section}.{name} = {v}  (on {changes(base, best) or 'preset'})")
+                if err < best_err - 1e-6:
+                    best, best_err, changed = cand, err, True
+        if not changed:
+            break
+    return best, best_err, start_err, log
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--dataset", default="kitti2015", choices=["kitti2015", "middlebury"])
+    ap.add_argument("--frames", default="000001-000020")
+    ap.add_argument("--weights", help="checkpoint (default: the shipped model of --dataset)")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--out", default="experiments/results")
+    args = ap.parse_args()
+    root = DATA / ("kitti2015/training" if args.dataset == "kitti2015" else "middlebury")
+    frames = _parse_frames(args.frames) if args.dataset == "kitti2015" else args.frames.split(",")
+    model = load_model(args.weights or shipped_weights(args.dataset))
+    base = preset("learned")
+    gt = "noc" if args.dataset == "kitti2015" else "occ"
+    samples = [load() for _, load in load_dataset(root, args.dataset, frames=frames, gt=gt)]
+    cache = cache_volumes(samples, model, base, lambda s: search_range(args.dataset, s, None))
+    best, best_err, start_err, log = coordinate_search(cache, base, SPACE, args.rounds)
+
+    out = Path(args.out)
+    name = f"chain_search_{args.dataset}"
+    result = {"dataset": args.dataset, "frames": [c[0] for c in cache], "weights": str(args.weights or "shipped"),
+              "start": start_err, "best": best_err, "changes": changes(base, best),
+              "best_config": best.to_dict(), "trials": log}
+    write_json(out / f"{name}.json", result)
+    lines = [f"# Learned-chain settings searched on {args.dataset} training frames",
+             "", f"Frames: {', '.join(result['frames'])} (training frames only; see experiments/PROTOCOL.md).",
+             f"Command: `.venv/bin/python experiments/search_chain.py --dataset {args.dataset} "
+             f"--frames {args.frames} --rounds {args.rounds}`", "",
+             f"Mean > 3 px (noc, dense): shipped preset {start_err:.3f} %, best {best_err:.3f} % with "
+             f"{changes(base, best) or 'no change'}.", "", "| > 3 px % | s | setting |", "|---|---|---|"]
+    lines += [f"| {r['bad3']:.3f} | {r['seconds']:.0f} | {r['setting']} |" for r in log]
+    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    print(json.dumps({"start": start_err, "best": best_err, "changes": changes(base, best)}))
+
+
+def changes(a: StereoConfig, b: StereoConfig) -> str:
+    """The fields where b differs from a, as 'sgm.p1=0.7, ...'."""
+    out = []
+    for section in ("cbca", "sgm", "refine"):
+        for f in dataclasses.fields(getattr(a, section)):
+            va, vb = getattr(getattr(a, section), f.name), getattr(getattr(b, section), f.name)
+            if va != vb:
+                out.append(f"{section}.{f.name}={vb}")
+    return ", ".join(out)
+
+
+if __name__ == "__main__":
+    main()
