@@ -47,7 +47,13 @@ def _config(args, max_disp: int):
     cfg = _config_file(args)
     if cfg is not None:
         return cfg.with_max_disp(max_disp)
-    cfg = preset(args.method, max_disp)
+    if args.method == "learned":
+        from .models import learned_config
+
+        # the chain settings searched for this model travel with it (NAME.json beside the weights)
+        cfg = learned_config(getattr(args, "weights", None), max_disp)
+    else:
+        cfg = preset(args.method, max_disp)
     if args.method == "learned" and getattr(args, "exact_head", False):
         cfg = dataclasses.replace(cfg, cost=dataclasses.replace(cfg.cost, candidates=0)).validate()
     return cfg

@@ -41,6 +41,40 @@ def weights_for_input(width: int, height: int, dataset: str | None = None) -> Pa
     return path if path.is_file() else None
 
 
+def chain_settings(weights) -> dict:
+    """The learned-chain settings that go with a model: the ``"chain"`` entry of the JSON card
+    next to its weights (``NAME.json`` beside ``NAME.msgpack``), as StereoConfig overrides of
+    ``preset("learned")`` (e.g. ``{"sgm": {"p1": 0.7}}``); {} when there is none."""
+    import json
+
+    card = Path(weights).with_suffix(".json")
+    if not card.is_file():
+        return {}
+    try:
+        return dict(json.loads(card.read_text()).get("chain") or {})
+    except (OSError, ValueError, AttributeError):
+        return {}
+
+
+def learned_config(weights=None, max_disp: int = 228):
+    """``preset("learned", max_disp)`` with the chain settings stored with ``weights`` (a path,
+    or a shipped name such as "kitti2015" / "middlebury"; None: the preset alone). This is the
+    configuration ``--method best`` runs for that model."""
+    from .config import StereoConfig, preset
+
+    base = preset("learned", max_disp)
+    if weights is None:
+        return base
+    path = shipped_weights(weights) if weights in SHIPPED else Path(weights)
+    over = chain_settings(path)
+    if not over:
+        return base
+    merged = base.to_dict()
+    for section, values in over.items():
+        merged[section] = {**merged[section], **values} if isinstance(values, dict) else values
+    return StereoConfig.from_dict(merged)
+
+
 def load_model(path, expect_net=None):
     """:class:`LearnedModel` (architecture + variables) from a checkpoint file (training
     checkpoint or shipped weights). ``expect_net``: a NetConfig the checkpoint must match."""

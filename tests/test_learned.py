@@ -143,3 +143,30 @@ def test_pruned_mode_with_all_candidates_equals_exact():
     part = np.asarray(learned_cost.pruned_dense_cost(net, v, fl, fr, some, 5, rows_per_tile=4))
     np.testing.assert_allclose(part[..., :2], np.asarray(exact)[..., :2], atol=1e-5)
     assert np.all(part[..., 2:] == 1.0)
+
+
+def test_chain_settings_travel_with_the_model(tmp_path):
+    import json
+    import shutil
+
+    from stereojax import preset
+    from stereojax.errors import ConfigError
+    from stereojax.models import chain_settings, learned_config, shipped_weights
+
+    src = shipped_weights("kitti2015")
+    w = tmp_path / "m.msgpack"
+    shutil.copy(src, w)
+    assert chain_settings(w) == {} and learned_config(w, 64) == preset("learned", 64)
+    (tmp_path / "m.json").write_text(json.dumps({"chain": {"sgm": {"p1": 0.7}, "refine": {"median_size": 3}}}))
+    cfg = learned_config(w, 64)
+    assert cfg.sgm.p1 == 0.7 and cfg.refine.median_size == 3 and cfg.max_disp == 64
+    assert cfg.sgm.p2 == preset("learned").sgm.p2 and cfg.cost == preset("learned", 64).cost
+    # the CLI's --method learned runs the model's settings
+    from stereojax.cli import _config, build_parser
+
+    args = build_parser().parse_args(["predict", "a", "b", "--out", "o", "--method", "learned",
+                                      "--weights", str(w)])
+    assert _config(args, 64) == cfg
+    (tmp_path / "m.json").write_text(json.dumps({"chain": {"sgm": {"p7": 1}}}))
+    with pytest.raises(ConfigError, match="sgm.p7"):
+        learned_config(w, 64)
