@@ -108,13 +108,18 @@ def score(cache, cfg: StereoConfig, threshold: str = "bad3") -> tuple[float, lis
         disp = np.asarray(_back(vol, lp, rp, valid, cfg.with_max_disp(md)))[:valid[0], :valid[1]]
         m = evaluate(disp, s.gt, s.gt_valid)
         errs.append(float(np.mean([m[k] for k in threshold.split("+")])))
+    # every setting is a new program: drop the old ones (a search of ~75 KITTI-sized programs
+    # kept in memory ended in "LLVM compilation error: Cannot allocate memory" here)
+    _back.clear_cache()
     return float(np.mean(errs)), errs
 
 
-def coordinate_search(cache, base: StereoConfig, space=SPACE, rounds: int = 2, threshold: str = "bad3"):
+def coordinate_search(cache, base: StereoConfig, space=SPACE, rounds: int = 2, threshold: str = "bad3",
+                      on_trial=None):
     """Each parameter of ``space`` in turn takes its best value (lowest mean error over the
     cached frames), ``rounds`` times over (stopping early when nothing changes).
-    Returns (best config, its error, the shipped config's error, the log of every trial)."""
+    Returns (best config, its error, the shipped config's error, the log of every trial).
+    on_trial(best, best_err, start_err, log): called after every trial (to save progress)."""
     log, seen = [], {}
 
     def trial(cfg, what):
@@ -139,6 +144,8 @@ def coordinate_search(cache, base: StereoConfig, space=SPACE, rounds: int = 2, t
                 err = trial(cand, f"round {rnd + 1}: {section}.{name} = {v}  (on {changes(base, best) or 'preset'})")
                 if err < best_err - 1e-6:
                     best, best_err, changed = cand, err, True
+                if on_trial is not None:
+                    on_trial(best, best_err, start_err, log)
         if not changed:
             break
     return best, best_err, start_err, log
@@ -159,23 +166,42 @@ def main():
     gt = "noc" if args.dataset == "kitti2015" else "occ"
     samples = [load() for _, load in load_dataset(root, args.dataset, frames=frames, gt=gt)]
     cache = cache_volumes(samples, model, base, lambda s: search_range(args.dataset, s, None))
-    best, best_err, start_err, log = coordinate_search(cache, base, SPACE, args.rounds)
 
-    out = Path(args.out)
+    def save(best, best_err, start_err, log):
+        write_search(Path(args.out), args, [c[0] for c in cache], base, best, best_err, start_err, log)
+
+    best, best_err, start_err, log = coordinate_search(cache, base, SPACE, args.rounds, on_trial=save)
+    save(best, best_err, start_err, log)
+    print(json.dumps({"start": start_err, "best": best_err, "changes": changes(base, best)}))
+
+
+def write_search(out: Path, args, frames, base, best, best_err, start_err, log) -> None:
+    """OUT/chain_search_<dataset>.{json,md}: every trial so far and the best setting."""
     name = f"chain_search_{args.dataset}"
-    result = {"dataset": args.dataset, "frames": [c[0] for c in cache], "weights": str(args.weights or "shipped"),
+    result = {"dataset": args.dataset, "frames": frames, "weights": str(args.weights or "shipped"),
               "start": start_err, "best": best_err, "changes": changes(base, best),
-              "best_config": best.to_dict(), "trials": log}
+              "overrides": overrides(base, best), "best_config": best.to_dict(), "trials": log}
     write_json(out / f"{name}.json", result)
     lines = [f"# Learned-chain settings searched on {args.dataset} training frames",
-             "", f"Frames: {', '.join(result['frames'])} (training frames only; see experiments/PROTOCOL.md).",
+             "", f"Frames: {', '.join(frames)} (training frames only; see experiments/PROTOCOL.md).",
              f"Command: `.venv/bin/python experiments/search_chain.py --dataset {args.dataset} "
              f"--frames {args.frames} --rounds {args.rounds}`", "",
              f"Mean > 3 px (noc, dense): shipped preset {start_err:.3f} %, best {best_err:.3f} % with "
              f"{changes(base, best) or 'no change'}.", "", "| > 3 px % | s | setting |", "|---|---|---|"]
     lines += [f"| {r['bad3']:.3f} | {r['seconds']:.0f} | {r['setting']} |" for r in log]
     (out / f"{name}.md").write_text("\n".join(lines) + "\n")
-    print(json.dumps({"start": start_err, "best": best_err, "changes": changes(base, best)}))
+
+
+def overrides(a: StereoConfig, b: StereoConfig) -> dict:
+    """The fields where b differs from a as StereoConfig overrides ({"sgm": {"p1": 1.0}, ...}),
+    the form of a model card's "chain" entry."""
+    out: dict = {}
+    for section in ("cbca", "sgm", "refine"):
+        for f in dataclasses.fields(getattr(a, section)):
+            va, vb = getattr(getattr(a, section), f.name), getattr(getattr(b, section), f.name)
+            if va != vb:
+                out.setdefault(section, {})[f.name] = vb
+    return out
 
 
 def changes(a: StereoConfig, b: StereoConfig) -> str:
