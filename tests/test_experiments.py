@@ -109,3 +109,26 @@ def test_report_collects_the_quick_tables(dirs):
     for title in ("Table 1", "Table 2", "Table 4", "Figures 5-8", "Depth from a KITTI pair"):
         assert title in text
     assert "Not run yet: `make table3`" in text     # table3 was not made in this test
+
+
+def test_augment_compare_quick(dirs):
+    run("augment_compare.py", dirs)
+    data = json.loads((dirs["out"] / "augment_compare_quick.json").read_text())
+    models = data["models"].values()
+    assert len(models) == 4 and sorted(m["augment"] for m in models) == [False, False, True, True]
+    assert all(in_range(m["bad3"]) and in_range(100 * m["patch_val_error"]) for m in models)
+    assert data["select"] == ["000016"] and not set(data["train"]) & set(data["select"])
+    assert "Difference (augmented - none)" in (dirs["out"] / "augment_compare_quick.md").read_text()
+
+
+def test_middlebury_folds_quick(dirs):
+    run("middlebury_folds.py", dirs)
+    data = json.loads((dirs["out"] / "middlebury_folds_quick.json").read_text())
+    assert [r["scene"] for r in data["scenes"]] == ["Tsukuba_2001", "Venus_2001"]
+    for fold in data["folds"]:                # no scene is scored by a model or setting that saw it
+        assert not set(fold["held_out"]) & set(fold["train"])
+        assert not set(fold["held_out"]) & set(fold["searched_on"])
+        assert fold["search_best"] <= fold["search_start"]
+    for r in data["scenes"]:
+        for m in ("learned", "learned_preset", "census", "sgbm"):
+            assert in_range(r[m]["bad2"]) and in_range(r[m]["bad3"]) and r[m]["bad3"] <= r[m]["bad2"]
