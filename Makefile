@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate bench train train-middlebury \
-        table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain middlebury-folds augment-compare table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -65,6 +65,15 @@ train-middlebury: $(STAMP)  ## train the Middlebury model on six scenes, Motorcy
 	  --frames Aloe_opencv,Cones_2003Q,Reindeer_2006H,Teddy_2003Q,Tsukuba_2001,Venus_2001 \
 	  --val-frames Motorcycle_MiddEval3Q --preset cpu --steps 20000 --head downsize --loss relaxed \
 	  --out runs/middlebury_downsize
+
+search-chain: $(STAMP)  ## search the KITTI model's chain settings on training frames 1-19 (odd), cached volumes (~40 min) -> experiments/results/chain_search_kitti2015.*
+	$(EXP)/search_chain.py --dataset kitti2015 --frames 1,3,5,7,9,11,13,15,17,19 --rounds 2
+
+middlebury-folds: $(STAMP)  ## Middlebury, 3 folds: fine-tune the KITTI model, search settings, score held-out scenes vs SGBM (~55 min) -> experiments/results/middlebury_folds.*
+	$(EXP)/middlebury_folds.py --data $(DATA)
+
+augment-compare: $(STAMP)  ## patch augmentation on/off, 2 seeds, KITTI selection fold 16-20 (~25 min) -> experiments/results/augment_compare.*
+	$(EXP)/augment_compare.py --data $(DATA) --steps 1500
 
 table1: $(STAMP)  ## Table 1: BCE vs relaxed loss, SEEDS seeds, four train->test columns -> experiments/results/table1.*
 	$(EXP)/table1.py --seeds $(SEEDS) --steps $(STEPS) --kitti-frames $(KITTI_FRAMES)
