@@ -6,7 +6,7 @@ Command:  .venv/bin/python experiments/augment_compare.py [--steps 8000] [--seed
 Each model (the shipped architecture: 64 feature maps, downsize head, relaxed loss, the `cpu`
 preset's schedule compressed to --steps) trains on KITTI 2015 000001-000015 with and without
 ``--augment`` (sampling.AUGMENT_MCCNN) and is scored on 000016-000020 (noc GT, > 3 px) in the
-chain ``--method best`` runs (``preset("learned")``: the pruned adaptive head). The patch-level
+chain of ``preset("learned")`` (the pruned adaptive head, preset settings). The patch-level
 validation error on 000016-000020 is given too. The validation frames 000021-000030 are not
 touched. Running time here (2 cores): about 7 min per model at 8000 steps, then ~20 s per frame.
 Trained models are kept in --runs (a killed run resumes); --quick: a tiny smoke test.
@@ -87,7 +87,7 @@ def main():
     diff = mean_std([r["bad3"] for r in rows.values() if r["augment"]])[0] - \
         mean_std([r["bad3"] for r in rows.values() if not r["augment"]])[0]
     md = (f"# Patch augmentation, KITTI 2015 selection fold\n\nTrained on {train_ids[0]}-{train_ids[-1]}, "
-          f"scored on {select_ids[0]}-{select_ids[-1]} (noc GT, `--method best` chain), "
+          f"scored on {select_ids[0]}-{select_ids[-1]} (noc GT, `preset(\"learned\")` chain: pruned adaptive head, preset settings), "
           f"{cfg.steps} steps, seeds {args.seeds}; mean ± std over seeds.\n\n"
           + md_table(["augmentation", "> 3 px %", "patch val. error %", "per seed > 3 px"], table)
           + f"\n\nDifference (augmented - none): {diff:+.2f} points.\n")
