@@ -19,16 +19,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import dataclasses  # noqa: E402
-
 from common import (DEFAULT_DATA, QUICK_CROP, RESULTS, ROOT, _crop, _load, md_table, mean_std,  # noqa: E402
                     pm)
 
 import stereojax  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
 from stereojax.metrics import evaluate  # noqa: E402
-from stereojax.sampling import AUGMENT_MCCNN  # noqa: E402
-from stereojax.train import fit, load_model, train_preset  # noqa: E402
+from stereojax.train import fit, load_model, train_preset, with_augmentation  # noqa: E402
 
 TRAIN = [f"{i:06d}" for i in range(1, 16)]
 SELECT = [f"{i:06d}" for i in range(16, 21)]
@@ -61,7 +58,7 @@ def main():
                 cfg = train_preset("cpu", seed=seed, steps=args.steps, checkpoint_every=1000,
                                    val_every=args.steps, log_every=100)
             if aug:
-                cfg = dataclasses.replace(cfg, sampler=dataclasses.replace(cfg.sampler, augment=AUGMENT_MCCNN))
+                cfg = with_augmentation(cfg)
             done = run / "train_summary.json"
             if not (done.is_file() and json.loads(done.read_text()).get("steps") == cfg.steps):
                 print(f"training {name} ({cfg.steps} steps)", flush=True)

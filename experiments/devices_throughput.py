@@ -32,11 +32,9 @@ def main(steps: int = 30, augment: bool = False):
         samples = _samples()
     cfg = train_preset("cpu")
     if augment:
-        import dataclasses
+        from stereojax.train import with_augmentation
 
-        from stereojax.sampling import AUGMENT_MCCNN
-
-        cfg = dataclasses.replace(cfg, sampler=dataclasses.replace(cfg.sampler, augment=AUGMENT_MCCNN))
+        cfg = with_augmentation(cfg)
     data = build_patch_data(samples, cfg.net.patch_size, cfg.sampler)
     for n in range(1, len(jax.devices()) + 1):
         mesh = make_mesh(n)

@@ -560,9 +560,9 @@ def cmd_train(args) -> int:
                                   ("lr", args.lr)) if v is not None}
         cfg = train_preset(args.preset, head=args.head, loss=args.loss, **over)
         if args.augment:
-            from .sampling import AUGMENT_MCCNN
+            from .train import with_augmentation
 
-            cfg = dataclasses.replace(cfg, sampler=dataclasses.replace(cfg.sampler, augment=AUGMENT_MCCNN))
+            cfg = with_augmentation(cfg)
     gt = "occ" if args.dataset == "middlebury" else "noc"
 
     def load(frames):

@@ -111,6 +111,15 @@ def train_preset(name: str, head: str = "downsize", loss: str | None = None, **o
     return TrainConfig(loss=loss, **{**base[name], **overrides}).validate()
 
 
+def with_augmentation(cfg: TrainConfig, augment=None) -> TrainConfig:
+    """``cfg`` with patch augmentation (default: ``sampling.AUGMENT_MCCNN``, what
+    ``stereojax train --augment`` uses)."""
+    from .sampling import AUGMENT_MCCNN
+
+    aug = AUGMENT_MCCNN if augment is None else augment
+    return dataclasses.replace(cfg, sampler=dataclasses.replace(cfg.sampler, augment=aug)).validate()
+
+
 # ---- the jitted steps ------------------------------------------------------------------------
 
 def _optimizer(cfg: TrainConfig):

@@ -118,3 +118,12 @@ def test_train_config_round_trips_augmentation_and_old_configs_still_load():
     old = cfg.to_dict()
     old["sampler"].pop("augment")                                 # a checkpoint from before the option
     assert not TrainConfig.from_dict(old).sampler.augment.enabled
+
+
+def test_train_augment_flag_turns_on_the_mccnn_augmentation():
+    from stereojax.train import train_preset, with_augmentation
+
+    cfg = train_preset("tiny")
+    assert with_augmentation(cfg).sampler.augment == AUGMENT_MCCNN
+    assert with_augmentation(cfg).sampler.v_pos == cfg.sampler.v_pos          # the rest untouched
+    assert not cfg.sampler.augment.enabled

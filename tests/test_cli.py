@@ -212,3 +212,22 @@ def test_train_command_tiny(tmp_path, capsys):
                        "--weights", out / "checkpoint.msgpack"], capsys)
     assert code == 0
     assert (tmp_path / "p" / "disparity.png").exists()
+
+
+def test_train_command_augment_init_and_lr(tmp_path, capsys):
+    import json
+
+    root = tmp_path / "kitti" / "training"
+    _fake_kitti(root, n=2)
+    first = tmp_path / "first"
+    code, stdout, _ = _run(["train", "--data", root, "--dataset", "kitti2015", "--frames", "0-1",
+                            "--preset", "tiny", "--out", first], capsys)
+    assert code == 0, stdout
+    out = tmp_path / "tuned"
+    code, stdout, _ = _run(["train", "--data", root, "--dataset", "kitti2015", "--frames", "0-1", "--preset",
+                            "tiny", "--augment", "--init", first / "checkpoint.msgpack", "--lr", "0.001",
+                            "--out", out], capsys)
+    assert code == 0, stdout
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["sampler"]["augment"]["rotate"] == 7.0 and cfg["lr"] == 0.001
+    assert cfg.get("init") == str(first / "checkpoint.msgpack")
