@@ -161,6 +161,8 @@ def _run_pipeline(left, right, cfg, model=None, phases: _Phases | None = None):
     and the bucket."""
     from . import pipeline
     from .compile_cache import bucket_shape
+    from jax import devices as jax_devices
+
     from .devices import current_device
 
     phases = phases or _Phases(quiet=True)
@@ -173,21 +175,13 @@ def _run_pipeline(left, right, cfg, model=None, phases: _Phases | None = None):
     else:
         phases.start(f"compiling the {cfg.cost.method} chain for {shape[1]}x{shape[0]} "
                      f"(size bucket of {gl.shape[1]}x{gl.shape[0]}), {cfg.max_disp} disparities")
-        t0 = time.perf_counter()
         chain, _ = pipeline.compiled_chain(shape, cfg, model, device)
-        phases.done()
-        compile_s = time.perf_counter() - t0
+        compile_s = phases.done()
     phases.start(f"computing the disparity of {gl.shape[1]}x{gl.shape[0]}")
     disp = chain(gl, gr)
     secs = phases.done()
     return disp, {"seconds": secs, "compile_s": compile_s, "bucket": [int(shape[0]), int(shape[1])],
-                  "device": str(device if device is not None else _default_device())}
-
-
-def _default_device():
-    import jax
-
-    return jax.devices()[0]
+                  "device": str(device if device is not None else jax_devices()[0])}
 
 
 def _color_scale(disp, gt=None, gt_valid=None) -> float:
