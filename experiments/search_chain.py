@@ -10,7 +10,7 @@ static arguments of the jitted chain).
 The volume is the one ``--method best`` computes (``preset("learned")``: the head at the ranked
 census candidates, its candidate chain fixed); the search varies only what comes after it:
 CBCA passes before/after SGM, arm threshold tau and arm length, P1, P2, the gradient reduction
-(q1, q2, threshold), LR tolerance and the median window. Starting from the shipped preset, each
+(q1, q2, threshold), LR tolerance and the median window. Starting from the shipped preset (or, with ``--start``, a model's stored settings), each
 parameter in turn takes the value of its list that gives the lowest mean > 3 px error (noc GT,
 dense output, as KITTI's table) over the frames; ``--rounds`` passes over all parameters.
 
@@ -42,7 +42,7 @@ from stereojax.data.datasets import load_dataset, search_range  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
 from stereojax.learned_cost import ranked_dense_cost  # noqa: E402
 from stereojax.metrics import evaluate  # noqa: E402
-from stereojax.models import load_model, shipped_weights  # noqa: E402
+from stereojax.models import learned_config, load_model, shipped_weights  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -70,6 +70,22 @@ SPACE_SMALL = [
     ("refine", "lr_tolerance", [0.5, 1.0, 2.0, 3.0]),
     ("refine", "median_size", [0, 3, 5, 7]),
 ]
+
+#: around a setting already searched (``--start card``): one step either way of every value the
+#: KITTI search chose, P1 and P2 beyond the ends of SPACE's lists (the first search stopped at
+#: P1 = 1.0 and P2 = 4.0, the top and the bottom of its lists)
+SPACE_LOCAL = [
+    ("sgm", "p1", [0.7, 1.0, 1.5, 2.0]),
+    ("sgm", "p2", [3.0, 4.0, 5.0, 6.0]),
+    ("cbca", "iterations_before", [0, 1, 2]),
+    ("cbca", "tau", [7.0, 10.0, 15.0]),
+    ("cbca", "arm_length", [5, 7]),
+    ("sgm", "q2", [6.0, 10.0, 15.0]),
+    ("refine", "lr_tolerance", [1.0, 2.0]),
+    ("refine", "median_size", [5, 7, 9]),
+]
+
+SPACES = {"full": SPACE, "small": SPACE_SMALL, "local": SPACE_LOCAL}
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
@@ -143,7 +159,7 @@ def coordinate_search(cache, base: StereoConfig, space=SPACE, rounds: int = 2, t
         return seen[key][0]
 
     best = base
-    best_err = start_err = trial(best, "shipped preset")
+    best_err = start_err = trial(best, "start")
     for rnd in range(rounds):
         changed = False
         for section, name, values in space:
@@ -167,14 +183,19 @@ def main():
     ap.add_argument("--frames", default="000001-000020")
     ap.add_argument("--weights", help="checkpoint (default: the shipped model of --dataset)")
     ap.add_argument("--rounds", type=int, default=2)
-    ap.add_argument("--space", default="full", choices=["full", "small"],
-                    help="full: 11 parameters (KITTI); small: P1, P2, CBCA passes, LR tolerance, median")
+    ap.add_argument("--space", default="full", choices=sorted(SPACES),
+                    help="full: 11 parameters (KITTI); small: P1, P2, CBCA passes, LR tolerance, "
+                         "median; local: one step around an already searched setting (use with --start)")
+    ap.add_argument("--start", default="preset",
+                    help="'preset' (preset('learned')) or a model (shipped name or weights path) "
+                         "whose stored chain settings the search starts from")
+    ap.add_argument("--tag", default="", help="suffix of the output file names")
     ap.add_argument("--out", default="experiments/results")
     args = ap.parse_args()
     root = DATA / ("kitti2015/training" if args.dataset == "kitti2015" else "middlebury")
     frames = _parse_frames(args.frames) if args.dataset == "kitti2015" else args.frames.split(",")
     model = load_model(args.weights or shipped_weights(args.dataset))
-    base = preset("learned")
+    base = preset("learned") if args.start == "preset" else learned_config(args.start)
     gt = "noc" if args.dataset == "kitti2015" else "occ"
     samples = [load() for _, load in load_dataset(root, args.dataset, frames=frames, gt=gt)]
     cache = cache_volumes(samples, model, base, lambda s: search_range(args.dataset, s, None))
@@ -183,7 +204,7 @@ def main():
         write_search(Path(args.out), args, [c[0] for c in cache], base, best, best_err, start_err, log)
 
     threshold = "bad3" if args.dataset == "kitti2015" else "bad2+bad3"
-    space = SPACE if args.space == "full" else SPACE_SMALL
+    space = SPACES[args.space]
     best, best_err, start_err, log = coordinate_search(cache, base, space, args.rounds, threshold, on_trial=save)
     save(best, best_err, start_err, log)
     print(json.dumps({"start": start_err, "best": best_err, "changes": changes(base, best)}))
@@ -191,16 +212,21 @@ def main():
 
 def write_search(out: Path, args, frames, base, best, best_err, start_err, log) -> None:
     """OUT/chain_search_<dataset>.{json,md}: every trial so far and the best setting."""
-    name = f"chain_search_{args.dataset}"
+    name = f"chain_search_{args.dataset}{args.tag}"
+    # the card's "chain" entry is always relative to preset("learned"), whatever the start
     result = {"dataset": args.dataset, "frames": frames, "weights": str(args.weights or "shipped"),
-              "start": start_err, "best": best_err, "changes": changes(base, best),
-              "overrides": overrides(base, best), "best_config": best.to_dict(), "trials": log}
+              "start_from": args.start, "start": start_err, "best": best_err,
+              "changes": changes(base, best), "overrides": overrides(preset("learned"), best),
+              "best_config": best.to_dict(), "trials": log}
     write_json(out / f"{name}.json", result)
     lines = [f"# Learned-chain settings searched on {args.dataset} training frames",
              "", f"Frames: {', '.join(frames)} (training frames only; see experiments/PROTOCOL.md).",
              f"Command: `.venv/bin/python experiments/search_chain.py --dataset {args.dataset} "
-             f"--frames {args.frames} --rounds {args.rounds} --space {args.space}`", "",
-             f"Mean {'> 3 px (noc' if args.dataset == 'kitti2015' else 'of > 2 and > 3 px (all-pixel GT'}, dense): shipped preset {start_err:.3f} %, best {best_err:.3f} % with "
+             f"--frames {args.frames} --rounds {args.rounds} --space {args.space}"
+             f"{f' --weights {args.weights}' if args.weights else ''}"
+             f"{f' --start {args.start}' if args.start != 'preset' else ''}`", "",
+             f"Mean {'> 3 px (noc' if args.dataset == 'kitti2015' else 'of > 2 and > 3 px (all-pixel GT'}, dense): "
+             f"start ({args.start}) {start_err:.3f} %, best {best_err:.3f} % with "
              f"{changes(base, best) or 'no change'}.", "", "| error % | s | setting |", "|---|---|---|"]
     key = "bad3" if args.dataset == "kitti2015" else "bad2+bad3"
     lines += [f"| {r[key]:.3f} | {r['seconds']:.0f} | {r['setting']} |" for r in log]
