@@ -56,9 +56,12 @@ evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015|kitti2012|middlebu
 bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS -> experiments/results/bench.{json,md}
 	$(CLI) bench --out experiments/results
 
-train: $(STAMP)  ## train the downsize/relaxed model on KITTI 2015 000001-000020 (cpu preset, 50000 steps, 45-90 min here) -> runs/kitti2015_downsize
+train: $(STAMP)  ## train the shipped KITTI model on KITTI 2015 000001-000020: 50000 steps from scratch, then 40000 more at lr 0.01 (cpu preset, about 95 min here) -> runs/kitti2015_continue
 	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000020 --val-frames 000021-000030 \
 	  --preset cpu --head downsize --loss relaxed --out runs/kitti2015_downsize
+	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000020 --val-frames 000021-000030 \
+	  --preset cpu --head downsize --loss relaxed --init runs/kitti2015_downsize/checkpoint.msgpack \
+	  --lr 0.01 --steps 40000 --out runs/kitti2015_continue
 
 train-middlebury: $(STAMP)  ## train the Middlebury model on six scenes, Motorcycle held out (cpu preset, 20000 steps) -> runs/middlebury_downsize
 	$(CLI) train --data $(DATA) --dataset middlebury \
