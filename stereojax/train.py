@@ -87,6 +87,13 @@ class TrainConfig:
     def from_dict(cls, data) -> "TrainConfig":
         return _from_dict(cls, data).validate()
 
+    @classmethod
+    def from_stored(cls, stored: dict) -> "TrainConfig":
+        """The training config of a checkpoint's or shipped model's stored config
+        (``checkpoint.read_config``), which also carries the run's facts that are not settings
+        (the CLI's "data" frames, the "init" weights of a fine-tune)."""
+        return cls.from_dict({k: v for k, v in stored.items() if k in cls.__dataclass_fields__})
+
 
 def train_preset(name: str, head: str = "downsize", loss: str | None = None, **overrides) -> TrainConfig:
     """``cpu``: trains in under an hour on 2 cores; ``paper``: the paper's schedule (18 epochs

@@ -62,7 +62,7 @@ def test_shipped_kitti_model_classifies_validation_patches(data_root):
     path = shipped_weights("kitti2015")
     model = stereojax.load_model(path)
     stored = checkpoint.read_config(path)
-    cfg = TrainConfig.from_dict({k: v for k, v in stored.items() if k != "data"})
+    cfg = TrainConfig.from_stored(stored)   # the stored config also names its data and init
     s = load_kitti2015(data_root / "kitti2015" / "training", "000021")
     data = build_patch_data([s], cfg.net.patch_size, cfg.sampler)
     _, err = eval_step(dict(model.variables), data, dataclasses.replace(cfg, seed=3), 2000)

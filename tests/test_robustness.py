@@ -610,7 +610,7 @@ def _ckpt_step(ckpt: Path):
     if not ckpt.exists():
         return 0, None
     stored = checkpoint.read_config(ckpt)                  # the CLI adds a "data" section
-    cfg = TrainConfig.from_dict({k: v for k, v in stored.items() if k in TrainConfig.__dataclass_fields__})
+    cfg = TrainConfig.from_stored(stored)
     state, _ = checkpoint.load(ckpt, init_state(cfg))      # raises on a damaged file
     return int(state["step"]), state
 

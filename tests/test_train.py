@@ -178,3 +178,14 @@ def test_fit_from_init_starts_at_those_weights_and_refuses_another_network(tmp_p
     other = dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, features=4))
     with pytest.raises(ConfigError, match="--init model has network"):
         fit(other, _samples(), None, tmp_path / "c", progress=False, init=a)
+
+
+def test_config_from_stored_drops_run_facts():
+    """A fine-tune's stored config names its data and init weights: from_stored reads the
+    settings back, from_dict refuses the unknown keys."""
+    from stereojax.errors import ConfigError
+    cfg = train_preset("tiny", steps=7, lr=0.003)
+    stored = {**cfg.to_dict(), "data": {"dataset": "kitti2015", "frames": ["000001"]}, "init": "kitti2015"}
+    assert TrainConfig.from_stored(stored) == cfg
+    with pytest.raises(ConfigError, match="unknown config key"):
+        TrainConfig.from_dict(stored)
