@@ -224,7 +224,8 @@ def write_search(out: Path, args, frames, base, best, best_err, start_err, log) 
              f"Command: `.venv/bin/python experiments/search_chain.py --dataset {args.dataset} "
              f"--frames {args.frames} --rounds {args.rounds} --space {args.space}"
              f"{f' --weights {args.weights}' if args.weights else ''}"
-             f"{f' --start {args.start}' if args.start != 'preset' else ''}`", "",
+             f"{f' --start {args.start}' if args.start != 'preset' else ''}"
+             f"{f' --tag {args.tag}' if args.tag else ''}`", "",
              f"Mean {'> 3 px (noc' if args.dataset == 'kitti2015' else 'of > 2 and > 3 px (all-pixel GT'}, dense): "
              f"start ({args.start}) {start_err:.3f} %, best {best_err:.3f} % with "
              f"{changes(base, best) or 'no change'}.", "", "| error % | s | setting |", "|---|---|---|"]
