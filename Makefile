@@ -56,18 +56,23 @@ evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015|kitti2012|middlebu
 bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS -> experiments/results/bench.{json,md}
 	$(CLI) bench --out experiments/results
 
-train: $(STAMP)  ## train the shipped KITTI model on KITTI 2015 000001-000020: 50000 steps from scratch, then 40000 more at lr 0.01 (cpu preset, about 95 min here) -> runs/kitti2015_continue
+# stage 1 of the KITTI model, also the common pre-trained model of the Middlebury recipe
+runs/kitti2015_downsize/train_summary.json: $(STAMP)
 	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000020 --val-frames 000021-000030 \
 	  --preset cpu --head downsize --loss relaxed --out runs/kitti2015_downsize
+
+train: runs/kitti2015_downsize/train_summary.json  ## train the shipped KITTI model on KITTI 2015 000001-000020: 50000 steps from scratch, then 40000 more at lr 0.01 (cpu preset, about 95 min here) -> runs/kitti2015_continue
 	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000020 --val-frames 000021-000030 \
 	  --preset cpu --head downsize --loss relaxed --init runs/kitti2015_downsize/checkpoint.msgpack \
 	  --lr 0.01 --steps 40000 --out runs/kitti2015_continue
 
-train-middlebury: $(STAMP)  ## train the Middlebury model on six scenes, Motorcycle held out (cpu preset, 20000 steps) -> runs/middlebury_downsize
+train-middlebury: runs/kitti2015_downsize/train_summary.json  ## the shipped Middlebury model: the 50000-step KITTI model fine-tuned 3000 steps on six scenes (Motorcycle held out), then its chain settings searched (about 20 min after stage 1 of make train) -> runs/middlebury_finetune
 	$(CLI) train --data $(DATA) --dataset middlebury \
 	  --frames Aloe_opencv,Cones_2003Q,Reindeer_2006H,Teddy_2003Q,Tsukuba_2001,Venus_2001 \
-	  --val-frames Motorcycle_MiddEval3Q --preset cpu --steps 20000 --head downsize --loss relaxed \
-	  --out runs/middlebury_downsize
+	  --val-frames Motorcycle_MiddEval3Q --preset cpu --steps 3000 --lr 0.005 --head downsize --loss relaxed \
+	  --init runs/kitti2015_downsize/checkpoint.msgpack --out runs/middlebury_finetune
+	$(EXP)/search_chain.py --dataset middlebury --frames Cones_2003Q,Reindeer_2006H,Teddy_2003Q,Tsukuba_2001,Venus_2001 \
+	  --rounds 1 --space small --weights runs/middlebury_finetune/checkpoint.msgpack --tag _finetune
 
 search-chain: $(STAMP)  ## search the KITTI model's chain settings on training frames 1-19 (odd), cached volumes (~40 min) -> experiments/results/chain_search_kitti2015.*
 	$(EXP)/search_chain.py --dataset kitti2015 --frames 1,3,5,7,9,11,13,15,17,19 --rounds 2
