@@ -77,8 +77,8 @@ train-middlebury: runs/kitti2015_downsize/train_summary.json  ## the shipped Mid
 search-chain: $(STAMP)  ## search the KITTI model's chain settings on training frames 1-19 (odd), cached volumes (~40 min) -> experiments/results/chain_search_kitti2015.*
 	$(EXP)/search_chain.py --dataset kitti2015 --frames 1,3,5,7,9,11,13,15,17,19 --rounds 2
 
-middlebury-folds: $(STAMP)  ## Middlebury, 3 folds: fine-tune the KITTI model, search settings, score held-out scenes vs SGBM (~55 min) -> experiments/results/middlebury_folds.*
-	$(EXP)/middlebury_folds.py --data $(DATA)
+middlebury-folds: runs/kitti2015_downsize/train_summary.json  ## Middlebury, 3 folds: fine-tune the 50000-step KITTI model (stage 1 of make train), search settings, score held-out scenes vs SGBM (~55 min) -> experiments/results/middlebury_folds.*
+	$(EXP)/middlebury_folds.py --data $(DATA) --init runs/kitti2015_downsize/checkpoint.msgpack
 
 augment-compare: $(STAMP)  ## patch augmentation on/off, 2 seeds, KITTI selection fold 16-20 (~25 min) -> experiments/results/augment_compare.*
 	$(EXP)/augment_compare.py --data $(DATA) --steps 1500
