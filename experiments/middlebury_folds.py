@@ -31,7 +31,7 @@ from stereojax.baselines import sgbm_disparity  # noqa: E402
 from stereojax.data.datasets import search_range  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
 from stereojax.metrics import evaluate  # noqa: E402
-from stereojax.models import SHIPPED, load_model, shipped_weights  # noqa: E402
+from stereojax.models import load_model, weights_path  # noqa: E402
 from stereojax.train import fit, train_preset  # noqa: E402
 
 #: three folds, balanced by pixels; every scene is held out exactly once
@@ -61,7 +61,7 @@ def main():
     space = SPACE[:1] if args.quick else SPACE
     load = lambda name: _load(args.data, "middlebury", name, "occ")  # noqa: E731
     base = stereojax.preset("learned")
-    kitti = load_model(shipped_weights(args.init) if args.init in SHIPPED else args.init)
+    kitti = load_model(weights_path(args.init))
     init_tag = "" if args.init == "kitti2015" else "_" + Path(args.init).resolve().parent.name
     rows, fold_info = [], []
     for i, held in enumerate(folds):

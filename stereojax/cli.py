@@ -570,9 +570,9 @@ def cmd_train(args) -> int:
           f"{args.dataset} images, {cfg.steps} steps -> {out}", flush=True)
     init = None
     if args.init:
-        from .models import SHIPPED, load_model, shipped_weights
+        from .models import load_model, weights_path
 
-        init = load_model(shipped_weights(args.init) if args.init in SHIPPED else args.init)
+        init = load_model(weights_path(args.init))
         info["init"] = args.init
     summary = fit(cfg, train_samples, val_samples, out, resume=args.resume, info=info, devices=args.devices,
                   init=init)

@@ -28,6 +28,11 @@ def shipped_weights(dataset: str = "kitti2015") -> Path:
     return path
 
 
+def weights_path(weights) -> Path:
+    """The file of ``weights``: a shipped model's name ("kitti2015", "middlebury") or a path."""
+    return shipped_weights(weights) if weights in SHIPPED else Path(weights)
+
+
 def weights_for_input(width: int, height: int, dataset: str | None = None) -> Path | None:
     """The shipped model for an input: the data set's own when ``dataset`` is given (KITTI 2012
     uses the KITTI 2015 model), else by shape: KITTI-like wide road frames (width >= 2.5 x
@@ -65,8 +70,7 @@ def learned_config(weights=None, max_disp: int = 228):
     base = preset("learned", max_disp)
     if weights is None:
         return base
-    path = shipped_weights(weights) if weights in SHIPPED else Path(weights)
-    over = chain_settings(path)
+    over = chain_settings(weights_path(weights))
     if not over:
         return base
     merged = base.to_dict()

@@ -199,12 +199,18 @@ def test_learned_method_with_missing_weights(pair_files, tmp_path, capsys):
     assert code == 4 and "does not exist" in err
 
 
+def _train_tiny(root, out, capsys, *extra):
+    """`stereojax train` of the tiny preset on fake KITTI frames 0-1; (exit code, stdout)."""
+    code, stdout, _ = _run(["train", "--data", root, "--dataset", "kitti2015", "--frames", "0-1",
+                            "--preset", "tiny", *extra, "--out", out], capsys)
+    return code, stdout
+
+
 def test_train_command_tiny(tmp_path, capsys):
     root = tmp_path / "kitti" / "training"
     _fake_kitti(root, n=2)
     out = tmp_path / "run"
-    code, stdout, _ = _run(["train", "--data", root, "--dataset", "kitti2015", "--frames", "0-1",
-                            "--preset", "tiny", "--out", out], capsys)
+    code, stdout = _train_tiny(root, out, capsys)
     assert code == 0, stdout
     assert (out / "checkpoint.msgpack").exists() and (out / "train_summary.json").exists()
     code, _, _ = _run(["predict", root / "image_2" / "000000_10.png", root / "image_3" / "000000_10.png",
@@ -220,13 +226,11 @@ def test_train_command_augment_init_and_lr(tmp_path, capsys):
     root = tmp_path / "kitti" / "training"
     _fake_kitti(root, n=2)
     first = tmp_path / "first"
-    code, stdout, _ = _run(["train", "--data", root, "--dataset", "kitti2015", "--frames", "0-1",
-                            "--preset", "tiny", "--out", first], capsys)
+    code, stdout = _train_tiny(root, first, capsys)
     assert code == 0, stdout
     out = tmp_path / "tuned"
-    code, stdout, _ = _run(["train", "--data", root, "--dataset", "kitti2015", "--frames", "0-1", "--preset",
-                            "tiny", "--augment", "--init", first / "checkpoint.msgpack", "--lr", "0.001",
-                            "--out", out], capsys)
+    code, stdout = _train_tiny(root, out, capsys, "--augment", "--init", first / "checkpoint.msgpack",
+                               "--lr", "0.001")
     assert code == 0, stdout
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["sampler"]["augment"]["rotate"] == 7.0 and cfg["lr"] == 0.001
