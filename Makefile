@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate bench train train-middlebury \
-        search-chain middlebury-folds augment-compare table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain middlebury-folds augment-compare compressed train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -56,6 +56,13 @@ evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015|kitti2012|middlebu
 bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS -> experiments/results/bench.{json,md}
 	$(CLI) bench --out experiments/results
 
+ANCHORS_VENV ?= .venv-anchors
+bench-anchors: $(STAMP)  ## optional: CNES Pandora (MC-CNN + libsgm) in its own venv, timed on the bench frame beside best and SGBM (~5 min with the install) -> experiments/results/anchors.*
+	test -x $(ANCHORS_VENV)/bin/python || $(PYTHON) -m venv $(ANCHORS_VENV)
+	$(ANCHORS_VENV)/bin/pip install -q torch==2.13.0
+	$(ANCHORS_VENV)/bin/pip install -q pandora pandora-plugin-libsgm libsgm mccnn pandora-plugin-mccnn
+	$(PY) experiments/bench_anchors.py --data $(DATA) --anchors-python $(ANCHORS_VENV)/bin/python
+
 # stage 1 of the KITTI model, also the common pre-trained model of the Middlebury recipe
 runs/kitti2015_downsize/train_summary.json: $(STAMP)
 	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000020 --val-frames 000021-000030 \
@@ -79,6 +86,9 @@ search-chain: $(STAMP)  ## search the KITTI model's chain settings on training f
 
 middlebury-folds: runs/kitti2015_downsize/train_summary.json  ## Middlebury, 3 folds: fine-tune the 50000-step KITTI model (stage 1 of make train), search settings, score held-out scenes vs SGBM (~55 min) -> experiments/results/middlebury_folds.*
 	$(EXP)/middlebury_folds.py --data $(DATA) --init runs/kitti2015_downsize/checkpoint.msgpack
+
+compressed: $(STAMP)  ## issue 16: train the compressed candidates on KITTI 2015 1-15 (direct and distilled), score them, choose by experiments/PROTOCOL.md (~45 min) -> experiments/results/compressed.*
+	$(EXP)/compressed.py --data $(DATA)
 
 augment-compare: $(STAMP)  ## patch augmentation on/off, 2 seeds, KITTI selection fold 16-20 (~25 min) -> experiments/results/augment_compare.*
 	$(EXP)/augment_compare.py --data $(DATA) --steps 1500

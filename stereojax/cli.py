@@ -77,7 +77,8 @@ _MODELS_LOCK = threading.Lock()
 def _resolve_method(args, width: int, height: int, dataset: str | None = None) -> None:
     """Turn ``--method best`` (the default) into ``learned`` with the shipped model for this
     input (:func:`stereojax.models.weights_for_input`), or ``census`` when that model is not
-    shipped; a shipped name given to ``--weights`` (kitti2015, middlebury) becomes its path."""
+    shipped; a shipped name given to ``--weights`` (kitti2015, kitti2015_compact, middlebury)
+    becomes its path."""
     from .models import SHIPPED, shipped_weights, weights_for_input
 
     if getattr(args, "weights", None) in SHIPPED:
@@ -92,12 +93,8 @@ def _resolve_method(args, width: int, height: int, dataset: str | None = None) -
         args.method = "learned"
         return
     path = weights_for_input(width, height, dataset)
+    # the same model and chain settings on every backend (the exact head only on request)
     args.method, args.weights = ("learned", str(path)) if path else ("census", None)
-    if path:
-        # on an accelerator the exact head is affordable; on the CPU the pruned adaptive head
-        import jax
-
-        args.exact_head = jax.default_backend() != "cpu"
 
 
 def _model(args):
@@ -121,15 +118,13 @@ def _model(args):
 
 def _describe(args) -> str:
     if args.method == "learned":
-        weights = Path(args.weights).name if args.weights else "kitti2015 (shipped)"
-        head = ""
-        if getattr(args, "exact_head", None) is not None and not getattr(args, "config", None):
-            import jax
+        from .models import shipped_name, shipped_weights
 
-            backend = jax.default_backend()
-            head = (f", exact head (every disparity; chosen on the {backend} backend)" if args.exact_head
-                    else f", pruned adaptive head (chosen on the {backend} backend)")
-        return f"learned cost, weights {weights}{head}"
+        weights = args.weights or str(shipped_weights("kitti2015"))
+        name = shipped_name(weights)
+        label = f"shipped model {name}" if name else f"weights {Path(weights).name}"
+        head = ", exact head (every disparity)" if getattr(args, "exact_head", False) else ""
+        return f"learned cost, {label}{head}"
     return f"{args.method} cost"
 
 
@@ -538,6 +533,16 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _parse_widths(text: str) -> tuple[int, ...]:
+    try:
+        widths = tuple(int(w) for w in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--widths must be comma-separated integers such as 64,32, got {text!r}") from None
+    if not widths or min(widths) < 1:
+        raise ConfigError(f"--widths must be positive integers, got {text!r}")
+    return widths
+
+
 def cmd_train(args) -> int:
     from .data.datasets import load_dataset
     from .train import TrainConfig, fit, maybe_initialize_distributed, train_preset
@@ -552,6 +557,15 @@ def cmd_train(args) -> int:
     else:
         over = {k: v for k, v in (("steps", args.steps), ("seed", args.seed), ("delta", args.delta),
                                   ("lr", args.lr)) if v is not None}
+        if args.features or args.widths:
+            from .nets import net_preset
+
+            net = net_preset(args.head, args.features or train_preset(args.preset, head=args.head).net.features)
+            if args.widths:
+                net = dataclasses.replace(net, widths=_parse_widths(args.widths)).validate()
+            over["net"] = net
+        if args.distill:
+            over["distill"] = args.distill_weight
         cfg = train_preset(args.preset, head=args.head, loss=args.loss, **over)
         if args.augment:
             from .train import with_augmentation
@@ -568,14 +582,19 @@ def cmd_train(args) -> int:
                      "val_frames": [s.name for s in val_samples or []]}}
     print(f"training {cfg.net.head} head ({cfg.loss}, delta {cfg.delta}) on {len(train_samples)} "
           f"{args.dataset} images, {cfg.steps} steps -> {out}", flush=True)
-    init = None
-    if args.init:
-        from .models import load_model, weights_path
+    init = teacher = None
+    from .models import load_model, weights_path
 
+    if args.init:
         init = load_model(weights_path(args.init))
         info["init"] = args.init
+    if cfg.distill:
+        if not args.distill:
+            raise ConfigError("the training config distils (distill > 0): name the teacher with --distill")
+        teacher = load_model(weights_path(args.distill))
+        info["distill_from"] = args.distill
     summary = fit(cfg, train_samples, val_samples, out, resume=args.resume, info=info, devices=args.devices,
-                  init=init)
+                  init=init, teacher=teacher)
     print(json.dumps(summary, indent=2, default=_json_default))
     return 0
 
@@ -614,7 +633,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "kind of input -- KITTI-like wide frames: KITTI 2015 model, others: Middlebury "
                         "model -- or census when that model is not shipped)")
         sp.add_argument("--weights", help="network checkpoint for --method learned/best, or the name of "
-                        "a shipped model (kitti2015, middlebury)")
+                        "a shipped model (kitti2015_compact, kitti2015 = the paper's full network, middlebury)")
+        sp.add_argument("--exact-head", action="store_true", help="learned cost: run the head at every "
+                        "disparity instead of the candidates (slow on a CPU; its chain settings were never "
+                        "searched)")
         sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides the chain "
                         "settings of --method; its cost.method must fit --method)")
 
@@ -677,6 +699,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--init", help="start from these weights (a checkpoint or a shipped model name) "
                     "instead of random ones; the optimiser and schedule start afresh")
     sp.add_argument("--lr", type=float, help="initial learning rate (default: the preset's, 0.02)")
+    sp.add_argument("--features", type=int, help="feature maps of the tower (default: the preset's, 64 for cpu)")
+    sp.add_argument("--widths", help="hidden widths of a dense head, comma separated (default: the head's, "
+                    "512,384,256,128 for downsize); e.g. 64,32 for a compressed network")
+    sp.add_argument("--distill", help="teacher network (a checkpoint or a shipped model name): distil its "
+                    "similarities beside the loss on the labels")
+    sp.add_argument("--distill-weight", type=float, default=1.0, help="weight of the distillation term (default 1)")
     sp.add_argument("--devices", type=int, help="data-parallel over this many devices (default: all); "
                     "the batch must divide by it")
     sp.add_argument("--out", required=True)

@@ -111,24 +111,37 @@ def naive_dense_cost(net: NetConfig, variables, fl, fr, max_disp: int) -> jax.Ar
     return jnp.stack(cols, axis=-1)
 
 
-def _head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
+def _head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int,
+             gather_features: bool | None = None) -> jax.Array:
     """``f32[H, W, K]``: head cost 1 - s at the disparities ``cand`` ``i32[H, W, K]``.
 
     fl, fr: tower features of the left and right view ``f32[H, W, F]``. The split first layer
     is computed a few rows at a time (at most ``rows_per_batch``, and at most 64 MB of
     pre-activation ``[rows, W, K, C1]``) inside ``lax.map``, so neither the projections of the
     whole image (``2 x [H, W, C1]``, 2 GB on a KITTI frame) nor the pre-activations are ever
-    held at once; the work is the same as projecting once per image.
+    held at once; the work is the same as projecting once per image. gather_features: gather
+    the right view's features and project each candidate (True) or project once per pixel and
+    gather the projections (False); None decides by the network's widths.
     """
     w, k = fl.shape[1], cand.shape[-1]
     c1 = model.cfg.widths[0]
     rows_per_batch = max(1, min(rows_per_batch, (64 << 20) // (w * k * c1 * 4)))
+    # a narrow tower (F < C1, the compressed networks): gather the right features and project
+    # them per candidate, which moves F instead of C1 floats per candidate (measured on a KITTI
+    # frame, F 16, C1 64, K 16: see experiments/results/compressed.md); the paper's network
+    # (F 64 < C1 512 too, but 8x the matmul) projects once per pixel and gathers
+    if gather_features is None:
+        gather_features = 4 * fl.shape[-1] <= c1 and c1 <= 128
 
     def row(args):
         fl_r, fr_r, ct = args                                               # [W, F], [W, F], [W, K]
-        at, bt = model.apply(variables, fl_r, fr_r, method=MatchNet.project)   # [W, C1]
         cols = jnp.maximum(jnp.arange(w)[:, None] - ct, 0)
-        logit = model.apply(variables, at[:, None, :] + bt[cols], method=MatchNet.finish)
+        if gather_features:
+            at, bt = model.apply(variables, fl_r, fr_r[cols], method=MatchNet.project)   # [W, C1], [W, K, C1]
+        else:
+            at, bt = model.apply(variables, fl_r, fr_r, method=MatchNet.project)   # [W, C1]
+            bt = bt[cols]
+        logit = model.apply(variables, at[:, None, :] + bt, method=MatchNet.finish)
         return 1.0 - jax.nn.sigmoid(logit)
 
     return jax.lax.map(row, (fl, fr, cand), batch_size=rows_per_batch)

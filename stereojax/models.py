@@ -15,34 +15,52 @@ from .errors import CheckpointError
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 
-#: data sets with a shipped model (stereojax/weights/<name>_downsize_relaxed.msgpack)
-SHIPPED = ("kitti2015", "middlebury")
+#: shipped models: name -> file stem in stereojax/weights (<stem>.msgpack, its card <stem>.json).
+#: "kitti2015" and "middlebury" are the paper's network (tower of 64 maps, downsize head
+#: 512-384-256-128); "kitti2015_compact" is the compressed network distilled from "kitti2015"
+#: (experiments/results/compressed.md).
+SHIPPED = {"kitti2015": "kitti2015_downsize_relaxed", "middlebury": "middlebury_downsize_relaxed"}
+
+#: the shipped model that ``--method best`` runs for each kind of input, chosen by the rules of
+#: experiments/PROTOCOL.md ("A compressed network")
+BEST = {"kitti": "kitti2015", "middlebury": "middlebury"}
 
 
-def shipped_weights(dataset: str = "kitti2015") -> Path:
-    """Path of the pretrained weights shipped in the package for ``dataset``."""
-    path = WEIGHTS_DIR / f"{dataset}_downsize_relaxed.msgpack"
+def shipped_weights(name: str = "kitti2015") -> Path:
+    """Path of the pretrained weights shipped in the package under ``name`` (see SHIPPED)."""
+    if name not in SHIPPED:
+        raise CheckpointError(f"no shipped model named {name!r}; shipped: {', '.join(SHIPPED)}")
+    path = WEIGHTS_DIR / f"{SHIPPED[name]}.msgpack"
     if not path.is_file():
         have = sorted(p.name for p in WEIGHTS_DIR.glob("*.msgpack")) if WEIGHTS_DIR.is_dir() else []
-        raise CheckpointError(f"no shipped weights for {dataset} ({path.name}); shipped: {have or 'none'}")
+        raise CheckpointError(f"no shipped weights for {name} ({path.name}); shipped: {have or 'none'}")
     return path
 
 
 def weights_path(weights) -> Path:
-    """The file of ``weights``: a shipped model's name ("kitti2015", "middlebury") or a path."""
+    """The file of ``weights``: a shipped model's name (see SHIPPED) or a path."""
     return shipped_weights(weights) if weights in SHIPPED else Path(weights)
 
 
+def shipped_name(path) -> str | None:
+    """The shipped name of a weights file (None for any other file)."""
+    stem = Path(path).resolve()
+    for name, s in SHIPPED.items():
+        if stem == (WEIGHTS_DIR / f"{s}.msgpack").resolve():
+            return name
+    return None
+
+
 def weights_for_input(width: int, height: int, dataset: str | None = None) -> Path | None:
-    """The shipped model for an input: the data set's own when ``dataset`` is given (KITTI 2012
-    uses the KITTI 2015 model), else by shape: KITTI-like wide road frames (width >= 2.5 x
-    height, KITTI is 3.3) -> the KITTI 2015 model, other pairs -> the Middlebury model.
-    None when that model is not shipped."""
+    """The shipped model ``--method best`` runs for an input (:data:`BEST`): by data set when
+    ``dataset`` is given (KITTI 2012 and 2015 -> the KITTI choice), else by shape: KITTI-like
+    wide road frames (width >= 2.5 x height, KITTI is 3.3) -> the KITTI choice, other pairs ->
+    the Middlebury model. None when that model is not shipped."""
     if dataset is not None:
-        kind = "kitti2015" if dataset.startswith("kitti") else "middlebury"
+        kind = "kitti" if dataset.startswith("kitti") else "middlebury"
     else:
-        kind = "kitti2015" if width >= 2.5 * height else "middlebury"
-    path = WEIGHTS_DIR / f"{kind}_downsize_relaxed.msgpack"
+        kind = "kitti" if width >= 2.5 * height else "middlebury"
+    path = WEIGHTS_DIR / f"{SHIPPED[BEST[kind]]}.msgpack"
     return path if path.is_file() else None
 
 
@@ -63,7 +81,7 @@ def chain_settings(weights) -> dict:
 
 def learned_config(weights=None, max_disp: int = 228):
     """``preset("learned", max_disp)`` with the chain settings stored with ``weights`` (a path,
-    or a shipped name such as "kitti2015" / "middlebury"; None: the preset alone). This is the
+    or a shipped name such as "kitti2015" / "kitti2015_compact"; None: the preset alone). This is the
     configuration ``--method best`` runs for that model."""
     from .config import StereoConfig, preset
 

@@ -159,6 +159,21 @@ def similarity(cfg: NetConfig, score):
     return jax.nn.sigmoid(score)
 
 
+def network_flops(cfg: NetConfig, height: int, width: int, evals_per_pixel: float) -> float:
+    """FLOP (2 per multiply-add) of the network on a ``height x width`` pair: the tower on both
+    views, the split first head layer once per pixel and view, and the layers after it at
+    ``evals_per_pixel`` disparities per pixel (cosine head: one F-dot product per evaluation)."""
+    f = cfg.features
+    tower = 2 * (9 * f + (cfg.layers - 1) * 9 * f * f)                  # both views
+    if cfg.head == "cosine":
+        per_eval, first = f, 0
+    else:
+        w = tuple(cfg.widths) + (1,)
+        first = 2 * f * w[0]                                             # left + right projection
+        per_eval = sum(a * b for a, b in zip(w[:-1], w[1:]))
+    return 2.0 * height * width * (tower + first + evals_per_pixel * per_eval)
+
+
 def init_params(cfg: NetConfig, key) -> dict:
     """Fresh variables ``{"params": ..., "batch_stats": ...}`` for ``cfg``."""
     p = cfg.patch_size

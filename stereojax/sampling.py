@@ -218,29 +218,45 @@ def sample_batch(key, data: PatchData, batch: int, patch_size: int, cfg: Sampler
     """
     if augment and cfg.augment.enabled:
         return _sample_augmented(key, data, batch, patch_size, cfg)
-    k_idx, k_pos, k_neg, k_sign = jax.random.split(key, 4)
-    i = jax.random.randint(k_idx, (batch,), 0, data.index.shape[0])
-    img, y, x, d = data.index[i], data.y[i], data.x[i], data.d[i]
-    o_pos = jax.random.uniform(k_pos, (batch,), minval=-cfg.v_pos, maxval=cfg.v_pos)
-    mag = jax.random.uniform(k_neg, (batch,), minval=cfg.z_low, maxval=cfg.z_high)
-    sign = jnp.where(jax.random.bernoulli(k_sign, 0.5, (batch,)), 1.0, -1.0)
+    img, y, x, d, o_pos, o_neg = _draw(key, data, batch, cfg)
     xr = x.astype(jnp.float32) - d
     ref = _cut(data.left, img, y, x.astype(jnp.float32), patch_size)
     pos = _cut(data.right, img, y, xr + o_pos, patch_size)
-    neg = _cut(data.right, img, y, xr + sign * mag, patch_size)
+    neg = _cut(data.right, img, y, xr + o_neg, patch_size)
     return ref, pos, neg
+
+
+def _draw(key, data: PatchData, batch: int, cfg: SamplerConfig):
+    """The random part of a batch: (image, y, x, d) of each reference pixel, the positive
+    offset o_pos and the signed negative offset o_neg (the same split of ``key`` for every
+    sampler, so a batch does not depend on which patches are cut from it)."""
+    k_idx, k_pos, k_neg, k_sign = jax.random.split(key, 4)
+    i = jax.random.randint(k_idx, (batch,), 0, data.index.shape[0])
+    o_pos = jax.random.uniform(k_pos, (batch,), minval=-cfg.v_pos, maxval=cfg.v_pos)
+    mag = jax.random.uniform(k_neg, (batch,), minval=cfg.z_low, maxval=cfg.z_high)
+    sign = jnp.where(jax.random.bernoulli(k_sign, 0.5, (batch,)), 1.0, -1.0)
+    return data.index[i], data.y[i], data.x[i], data.d[i], o_pos, sign * mag
+
+
+def sample_distill_batch(key, data: PatchData, batch: int, patch_size: int, cfg: SamplerConfig,
+                         soft_range: float):
+    """:func:`sample_batch` (not augmented) plus a fourth right patch per reference, ``soft``,
+    at x - d + o with o ~ U[-soft_range, soft_range]: the near-miss offsets among which a
+    disparity search chooses, where a distilled network learns the teacher's scores (there is
+    no label there). Returns (ref, pos, neg, soft), each ``f32[batch, P, P, 1]``; the first
+    three equal :func:`sample_batch`'s for the same key."""
+    ref, pos, neg = sample_batch(key, data, batch, patch_size, cfg, augment=False)
+    img, y, x, d, _, _ = _draw(key, data, batch, cfg)
+    o = jax.random.uniform(jax.random.fold_in(key, 2), (batch,), minval=-soft_range, maxval=soft_range)
+    soft = _cut(data.right, img, y, x.astype(jnp.float32) - d + o, patch_size)
+    return ref, pos, neg, soft
 
 
 def _sample_augmented(key, data: PatchData, batch: int, patch_size: int, cfg: SamplerConfig):
     """:func:`sample_batch` with :class:`AugmentConfig`: the offsets are drawn as without it
     (same key split), then the patches are read through the random maps."""
-    k_idx, k_pos, k_neg, k_sign = jax.random.split(key, 4)
+    img, y, x, d, o_pos, o_neg = _draw(key, data, batch, cfg)
     k_a, k_p, k_da, k_dp = jax.random.split(jax.random.fold_in(key, 1), 4)
-    i = jax.random.randint(k_idx, (batch,), 0, data.index.shape[0])
-    img, y, x, d = data.index[i], data.y[i], data.x[i], data.d[i]
-    o_pos = jax.random.uniform(k_pos, (batch,), minval=-cfg.v_pos, maxval=cfg.v_pos)
-    mag = jax.random.uniform(k_neg, (batch,), minval=cfg.z_low, maxval=cfg.z_high)
-    sign = jnp.where(jax.random.bernoulli(k_sign, 0.5, (batch,)), 1.0, -1.0)
     a = cfg.augment
     common = _affine(k_a, batch, a.rotate, a.scale, a.hscale, a.hshear)
     bright, gain = _photometric(k_p, batch, a.brightness, a.contrast)
@@ -251,5 +267,5 @@ def _sample_augmented(key, data: PatchData, batch: int, patch_size: int, cfg: Sa
     ref = _cut_warped(data.left, img, yf, xf, patch_size, common, bright, gain)
     rb, rg = bright + d_bright, gain * d_gain
     pos = _cut_warped(data.right, img, yf, xr + o_pos, patch_size, right, rb, rg)
-    neg = _cut_warped(data.right, img, yf, xr + sign * mag, patch_size, right, rb, rg)
+    neg = _cut_warped(data.right, img, yf, xr + o_neg, patch_size, right, rb, rg)
     return ref, pos, neg

@@ -31,7 +31,7 @@ from .errors import ConfigError, TrainingError
 # this module); re-exported here for existing callers
 from .models import SHIPPED, WEIGHTS_DIR, load_model, shipped_weights, weights_for_input  # noqa: F401
 from .nets import MatchNet, NetConfig, init_params, similarity
-from .sampling import PatchData, SamplerConfig, build_patch_data, sample_batch
+from .sampling import PatchData, SamplerConfig, build_patch_data, sample_batch, sample_distill_batch
 
 LOSSES = ("bce", "relaxed", "hinge")
 
@@ -44,6 +44,11 @@ class TrainConfig:
     batch: reference patches per step; each has one positive and one negative pair.
     lr, momentum: SGD; the learning rate is multiplied by ``decay`` after ``decay_from`` of
       the steps ("decay in the late epochs").
+    distill: weight of the distillation term (0 = off): the cross-entropy between the network's
+      similarity and a teacher network's, on the positive, the negative and a fourth right
+      patch at a near-miss offset U[-distill_range, distill_range] px from the true match
+      (:func:`stereojax.sampling.sample_distill_batch`), added to the loss on the labels. The
+      teacher is given to :func:`fit`; dense heads only, without augmentation.
     """
 
     net: NetConfig = field(default_factory=NetConfig)
@@ -62,6 +67,8 @@ class TrainConfig:
     log_every: int = 25
     val_every: int = 1000
     val_pairs: int = 3000
+    distill: float = 0.0
+    distill_range: float = 6.0
 
     def validate(self) -> "TrainConfig":
         self.net.validate()
@@ -76,6 +83,11 @@ class TrainConfig:
         for name in ("batch", "steps", "checkpoint_every", "log_every", "val_every", "val_pairs"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.distill < 0 or not 0 < self.distill_range <= self.sampler.z_high:
+            raise ConfigError(f"need distill >= 0 and 0 < distill_range <= sampler.z_high, got "
+                              f"{self.distill}, {self.distill_range}")
+        if self.distill and (self.net.head == "cosine" or self.sampler.augment.enabled):
+            raise ConfigError("distillation trains a dense head without patch augmentation")
         if self.lr <= 0 or not 0 <= self.momentum < 1 or not 0 < self.decay <= 1 or not 0 <= self.decay_from <= 1:
             raise ConfigError("need lr > 0, 0 <= momentum < 1, 0 < decay <= 1, 0 <= decay_from <= 1")
         return self
@@ -150,19 +162,20 @@ def _pair_losses(cfg: TrainConfig, s_pos, s_neg):
     return 0.5 * (fn(s_pos, jnp.ones_like(s_pos)) + fn(s_neg, jnp.zeros_like(s_neg)))
 
 
-def _scores(model, variables, ref, pos, neg, train):
+def _scores(model, variables, ref, *rights, train):
+    """Scores of ``ref`` against each patch batch of ``rights`` (one tower call for all), and
+    the batch-norm updates when ``train``."""
     b = ref.shape[0]
-    patches = jnp.concatenate([ref, pos, neg])
+    patches = jnp.concatenate([ref, *rights])
     if train:
         feats, updates = model.apply(variables, patches, True, method=MatchNet.features,
                                      mutable=["batch_stats"])
     else:
         feats, updates = model.apply(variables, patches, False, method=MatchNet.features), None
     f = feats[:, 0, 0]
-    fr, fp, fn = f[:b], f[b:2 * b], f[2 * b:]
-    s_pos = model.apply(variables, fr, fp, method=MatchNet.compare)
-    s_neg = model.apply(variables, fr, fn, method=MatchNet.compare)
-    return s_pos, s_neg, updates
+    scores = [model.apply(variables, f[:b], f[(i + 1) * b:(i + 2) * b], method=MatchNet.compare)
+              for i in range(len(rights))]
+    return (*scores, updates)
 
 
 def _errors(cfg, s_pos, s_neg):
@@ -191,28 +204,47 @@ def _check_batch(cfg: TrainConfig, mesh) -> None:
                           f"that is a multiple of {n} or another --devices")
 
 
-@functools.partial(jax.jit, static_argnames=("cfg", "mesh"))
-def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None):
+@functools.partial(jax.jit, static_argnames=("cfg", "mesh", "teacher_net"))
+def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None, teacher=None, teacher_net=None):
     """One SGD step on the batch of ``state["step"]``; returns (new state, metrics).
 
     mesh: None (one device) or a ``("data",)`` mesh (:func:`make_mesh`): the global batch is
     drawn exactly as on one device and split along the mesh, parameters and optimiser state
     are replicated, and XLA reduces the gradients and the batch-norm statistics over the
     whole batch, so N devices compute the step of one device (up to float rounding).
+
+    teacher, teacher_net: the variables and (static) NetConfig of the teacher network when
+    ``cfg.distill > 0``: its similarities on the batch's pairs are the soft targets.
     """
     model = MatchNet(cfg.net)
     key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), state["step"])
-    ref, pos, neg = sample_batch(key, data, cfg.batch, cfg.net.patch_size, cfg.sampler)
+    distill = cfg.distill > 0
+    if distill:
+        if teacher is None or teacher_net is None:
+            raise ConfigError("distill > 0 needs a teacher network")
+        patches = sample_distill_batch(key, data, cfg.batch, cfg.net.patch_size, cfg.sampler,
+                                       cfg.distill_range)
+    else:
+        patches = sample_batch(key, data, cfg.batch, cfg.net.patch_size, cfg.sampler)
     if mesh is not None:
         from jax.sharding import NamedSharding, PartitionSpec
 
         split = NamedSharding(mesh, PartitionSpec("data"))
-        ref, pos, neg = (jax.lax.with_sharding_constraint(x, split) for x in (ref, pos, neg))
+        patches = tuple(jax.lax.with_sharding_constraint(x, split) for x in patches)
+    targets = None
+    if distill:   # the teacher's similarities, constants of the step
+        t = _scores(MatchNet(teacher_net), teacher, *patches, train=False)[:-1]
+        targets = [jax.lax.stop_gradient(jax.nn.sigmoid(x)) for x in t]
 
     def loss_fn(params):
         variables = {"params": params, "batch_stats": state["batch_stats"]}
-        s_pos, s_neg, updates = _scores(model, variables, ref, pos, neg, True)
-        return _pair_losses(cfg, s_pos, s_neg).mean(), (updates, s_pos, s_neg)
+        *scores, updates = _scores(model, variables, *patches, train=True)
+        s_pos, s_neg = scores[0], scores[1]
+        loss = _pair_losses(cfg, s_pos, s_neg).mean()
+        if distill:
+            loss = loss + cfg.distill * jnp.mean(jnp.stack(
+                [losses.bce(s, t).mean() for s, t in zip(scores, targets)]))
+        return loss, (updates, s_pos, s_neg)
 
     (loss, (updates, s_pos, s_neg)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state["params"])
     opt, schedule = _optimizer(cfg)
@@ -231,7 +263,7 @@ def eval_step(state, data: PatchData, cfg: TrainConfig, pairs: int):
     key = jax.random.PRNGKey(cfg.seed + 7919)
     ref, pos, neg = sample_batch(key, data, pairs, cfg.net.patch_size, cfg.sampler, augment=False)
     variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
-    s_pos, s_neg, _ = _scores(model, variables, ref, pos, neg, False)
+    s_pos, s_neg, _ = _scores(model, variables, ref, pos, neg, train=False)
     return _pair_losses(cfg, s_pos, s_neg).mean(), _errors(cfg, s_pos, s_neg)
 
 
@@ -254,7 +286,7 @@ def _flat(d: dict, prefix: str = "") -> dict:
 
 def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None, out_dir,
         resume: bool = False, progress: bool = True, stop_after: int | None = None,
-        info: dict | None = None, devices: int | None = 1, init=None) -> dict[str, Any]:
+        info: dict | None = None, devices: int | None = 1, init=None, teacher=None) -> dict[str, Any]:
     """Train, checkpointing to ``out_dir/checkpoint.msgpack``; returns a summary dict.
 
     init: a :class:`~stereojax.learned_cost.LearnedModel` (same network) to start from instead
@@ -264,7 +296,8 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     resume: continue from the checkpoint in ``out_dir`` (it must have been made with the same
     config). stop_after: return after this many steps of this call (for tests). devices: data
     parallelism over this many devices (None: all; see :func:`train_step`); only process 0
-    of a multi-process run writes checkpoints, logs and TensorBoard.
+    of a multi-process run writes checkpoints, logs and TensorBoard. teacher: the
+    :class:`~stereojax.learned_cost.LearnedModel` whose scores ``cfg.distill`` distils.
     """
     from tqdm import tqdm
     from tensorboardX import SummaryWriter
@@ -272,6 +305,9 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     from .data.io import write_json
 
     cfg.validate()
+    if (cfg.distill > 0) != (teacher is not None):
+        raise ConfigError("a teacher network is needed exactly when distill > 0 "
+                          f"(distill {cfg.distill}, teacher {'given' if teacher else 'none'})")
     mesh = make_mesh(devices)
     _check_batch(cfg, mesh)
     main_process = jax.process_index() == 0
@@ -310,10 +346,15 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     bar = tqdm(range(start, end), initial=start, total=cfg.steps, desc="train", unit="step",
                disable=not progress, dynamic_ncols=True)
     history, t0, last_val = [], time.perf_counter(), None
-    samples_per_step = 3 * cfg.batch
+    samples_per_step = (4 if cfg.distill else 3) * cfg.batch
+    teacher_args = () if teacher is None else (teacher.variables, teacher.net)
+    if teacher is not None and mesh is not None:
+        from jax.sharding import NamedSharding, PartitionSpec
+
+        teacher_args = (jax.device_put(teacher.variables, NamedSharding(mesh, PartitionSpec())), teacher.net)
     last_good = start
     for step in bar:
-        new_state, m = train_step(state, data, cfg, mesh)
+        new_state, m = train_step(state, data, cfg, mesh, *teacher_args)
         loss = float(m["loss"])
         if not math.isfinite(loss):
             writer.close()

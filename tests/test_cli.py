@@ -159,11 +159,14 @@ def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):
     import argparse
 
     from stereojax.cli import _resolve_method
-    from stereojax.models import WEIGHTS_DIR, weights_for_input
+    from stereojax.models import BEST, SHIPPED, WEIGHTS_DIR, weights_for_input
 
-    kitti = WEIGHTS_DIR / "kitti2015_downsize_relaxed.msgpack"
+    kitti = WEIGHTS_DIR / f"{SHIPPED[BEST['kitti']]}.msgpack"          # what best runs on KITTI
+    full = WEIGHTS_DIR / "kitti2015_downsize_relaxed.msgpack"          # the paper's network
     mb = WEIGHTS_DIR / "middlebury_downsize_relaxed.msgpack"
+    assert kitti.is_file() and full.is_file()
     assert weights_for_input(1242, 375) == kitti                     # wide road frame
+    assert weights_for_input(1224, 370) == kitti                     # another KITTI size
     assert weights_for_input(10, 10, "kitti2012") == kitti           # by data set
     assert weights_for_input(741, 500) == (mb if mb.is_file() else None)
     assert weights_for_input(1242, 375, "middlebury") == (mb if mb.is_file() else None)
@@ -175,15 +178,43 @@ def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):
 
     assert resolve() == ("learned", str(kitti))
     assert resolve(method="census") == ("census", None)
-    assert resolve(weights="kitti2015") == ("learned", str(kitti))   # a shipped name
-    if mb.is_file():
-        assert resolve(weights="middlebury") == ("learned", str(mb))
-    else:
-        with pytest.raises(CheckpointError):
-            resolve(weights="middlebury")
+    assert resolve(weights="kitti2015") == ("learned", str(full))    # a shipped name
+    for name, stem in SHIPPED.items():                               # every shipped name resolves
+        assert resolve(weights=name) == ("learned", str(WEIGHTS_DIR / f"{stem}.msgpack"))
+    with pytest.raises(CheckpointError, match="no shipped model named"):
+        stereojax_models().shipped_weights("kitti2016")
     cfg = tmp_path / "sad.json"
     cfg.write_text(stereojax_preset_json("sad"))
     assert resolve(config=str(cfg)) == ("sad", None)                 # a classical chain from --config
+
+
+def stereojax_models():
+    import stereojax.models
+    return stereojax.models
+
+
+def test_best_runs_the_same_chain_on_every_backend_and_the_exact_head_on_request(monkeypatch):
+    """`best` never switches to the exact head by backend; --exact-head asks for it."""
+    import argparse
+
+    import jax
+
+    from stereojax.cli import _config, _describe, _resolve_method
+    from stereojax.models import learned_config, weights_for_input
+
+    seen = []
+    for backend in ("cpu", "gpu"):
+        monkeypatch.setattr(jax, "default_backend", lambda b=backend: b)
+        args = argparse.Namespace(method="best", weights=None, config=None)
+        _resolve_method(args, 1242, 375)
+        seen.append((_config(args, 228), _describe(args)))
+    assert seen[0] == seen[1]
+    assert seen[0][0] == learned_config(weights_for_input(1242, 375), 228)
+    assert seen[0][0].cost.candidates > 0 and "exact" not in seen[0][1]
+    assert "shipped model kitti2015" in seen[0][1]
+    args = argparse.Namespace(method="best", weights=None, config=None, exact_head=True)
+    _resolve_method(args, 1242, 375)
+    assert _config(args, 228).cost.candidates == 0 and "exact head" in _describe(args)
 
 
 def stereojax_preset_json(name):

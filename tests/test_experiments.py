@@ -132,3 +132,21 @@ def test_middlebury_folds_quick(dirs):
     for r in data["scenes"]:
         for m in ("learned", "learned_preset", "census", "sgbm"):
             assert in_range(r[m]["bad2"]) and in_range(r[m]["bad3"]) and r[m]["bad3"] <= r[m]["bad2"]
+
+
+def test_compressed_quick(dirs):
+    run("compressed.py", dirs)
+    data = json.loads((dirs["out"] / "compressed_quick.json").read_text())
+    rows = data["rows"]
+    assert [r["distilled"] for r in rows] == [False, False, False, True]
+    for r in rows:
+        assert in_range(r["select"]) and in_range(r["val"]) and r["seconds"] > 0 and r["gflop"] > 0
+    # the selection frames are neither training nor validation frames
+    assert not set(data["frames"]["select"]) & (set(data["frames"]["train"]) | set(data["frames"]["val"]))
+    # the protocol's choice: the fastest among those within 0.05 points of the lowest selection error
+    low = min(r["select"] for r in rows if r["seconds"] <= 6)
+    near = [r for r in rows if r["seconds"] <= 6 and r["select"] <= low + 0.05]
+    assert data["chosen"] == min(near, key=lambda r: r["seconds"])["name"]
+    assert data["becomes_best"] == (next(r for r in rows if r["name"] == data["chosen"])["val"] <= 4.07)
+    assert in_range(data["full"]["val"]) and in_range(data["sgbm"]["val"])
+    assert "speed against accuracy" in (dirs["out"] / "compressed_quick.md").read_text()
