@@ -19,7 +19,8 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 #: "kitti2015" and "middlebury" are the paper's network (tower of 64 maps, downsize head
 #: 512-384-256-128); "kitti2015_compact" is the compressed network distilled from "kitti2015"
 #: (experiments/results/compressed.md).
-SHIPPED = {"kitti2015": "kitti2015_downsize_relaxed", "middlebury": "middlebury_downsize_relaxed"}
+SHIPPED = {"kitti2015": "kitti2015_downsize_relaxed", "middlebury": "middlebury_downsize_relaxed",
+           "kitti2015_compact": "kitti2015_compact"}
 
 #: the shipped model that ``--method best`` runs for each kind of input, chosen by the rules of
 #: experiments/PROTOCOL.md ("A compressed network")
