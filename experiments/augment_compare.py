@@ -25,7 +25,8 @@ from common import (DEFAULT_DATA, QUICK_CROP, RESULTS, ROOT, _crop, _load, md_ta
 import stereojax  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
 from stereojax.metrics import evaluate  # noqa: E402
-from stereojax.train import fit, load_model, train_preset, with_augmentation  # noqa: E402
+from stereojax.models import load_model  # noqa: E402
+from stereojax.train import fit, train_preset, with_augmentation  # noqa: E402
 
 TRAIN = [f"{i:06d}" for i in range(1, 16)]
 SELECT = [f"{i:06d}" for i in range(16, 21)]

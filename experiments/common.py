@@ -38,7 +38,8 @@ from stereojax.baselines import sgbm_disparity  # noqa: E402
 from stereojax.data.datasets import load_dataset, search_range  # noqa: E402
 from stereojax.data.io import atomic_output, write_json  # noqa: E402
 from stereojax.metrics import evaluate, mean_metrics  # noqa: E402
-from stereojax.train import fit, load_model, train_preset  # noqa: E402
+from stereojax.models import load_model  # noqa: E402
+from stereojax.train import fit, train_preset  # noqa: E402
 
 RESULTS = ROOT / "experiments" / "results"
 RUNS = ROOT / "runs" / "experiments"

@@ -28,7 +28,7 @@ def main(steps: int = 30, augment: bool = False):
         samples = [load_kitti2015(root, "000001")]
     else:
         sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-        from tests.test_train import _samples
+        from tests.helpers import training_samples as _samples
         samples = _samples()
     cfg = train_preset("cpu")
     if augment:

@@ -17,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stereojax import checkpoint  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
-from stereojax.train import WEIGHTS_DIR, load_model  # noqa: E402
+from stereojax.models import WEIGHTS_DIR, load_model  # noqa: E402
 
 
 def main():

@@ -10,7 +10,7 @@ Prints and writes experiments/results/table1.{json,md}: per loss, mean ± std ov
 patch-level validation error and of the > 3 px disparity error in four train -> test columns that
 the data we have stands in for the paper's: KITTI 2015 -> KITTI 2015 (train 000001-000020, test
 000021-000030, non-occluded GT), KITTI 2015 -> KITTI 2012 (frame 000000, all-pixel GT), KITTI
-2015 -> Middlebury (7 scenes, all-pixel GT) and Middlebury (6 scenes) -> KITTI 2015.
+2015 -> Middlebury (the 4 test scenes of common.MIDDLEBURY_TEST, all-pixel GT) and Middlebury (6 scenes) -> KITTI 2015.
 """
 
 import argparse

@@ -1,7 +1,7 @@
-"""The ``stereojax`` command: predict, evaluate, demo, bench.
+"""The ``stereojax`` command: predict, evaluate, demo, bench, train.
 
 Every user mistake ends with one line on stderr and the exit code of its error class
-(see README, "Exit codes"); outputs are written atomically, so an interrupted run leaves
+(see docs/usage.md, "Exit codes"); outputs are written atomically, so an interrupted run leaves
 either the complete file or none.
 """
 

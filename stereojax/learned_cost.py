@@ -34,18 +34,6 @@ class LearnedModel(NamedTuple):
     variables: Any
 
 
-def image_features(net: NetConfig, variables, grey: jax.Array) -> jax.Array:
-    """``f32[H, W, F]`` tower features of a normalised grey image ``f32[H, W]``."""
-    r = net.layers
-    x = jnp.pad(grey, r, mode="edge")[None, :, :, None]
-    return MatchNet(net).apply(variables, x, False, method=MatchNet.features)[0]
-
-
-def normalise(grey: jax.Array) -> jax.Array:
-    """Zero mean, unit variance per image (as in training)."""
-    return (grey - grey.mean()) / jnp.maximum(grey.std(), 1e-6)
-
-
 def _shift_right_features(fr: jax.Array, d) -> jax.Array:
     """out[y, x] = fr[y, max(x - d, 0)] for a traced disparity d."""
     w = fr.shape[1]
@@ -111,37 +99,24 @@ def naive_dense_cost(net: NetConfig, variables, fl, fr, max_disp: int) -> jax.Ar
     return jnp.stack(cols, axis=-1)
 
 
-def _head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int,
-             gather_features: bool | None = None) -> jax.Array:
+def _head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
     """``f32[H, W, K]``: head cost 1 - s at the disparities ``cand`` ``i32[H, W, K]``.
 
     fl, fr: tower features of the left and right view ``f32[H, W, F]``. The split first layer
     is computed a few rows at a time (at most ``rows_per_batch``, and at most 64 MB of
     pre-activation ``[rows, W, K, C1]``) inside ``lax.map``, so neither the projections of the
     whole image (``2 x [H, W, C1]``, 2 GB on a KITTI frame) nor the pre-activations are ever
-    held at once; the work is the same as projecting once per image. gather_features: gather
-    the right view's features and project each candidate (True) or project once per pixel and
-    gather the projections (False); None decides by the network's widths.
+    held at once; the work is the same as projecting once per image.
     """
     w, k = fl.shape[1], cand.shape[-1]
     c1 = model.cfg.widths[0]
     rows_per_batch = max(1, min(rows_per_batch, (64 << 20) // (w * k * c1 * 4)))
-    # a narrow tower (F < C1, the compressed networks): gather the right features and project
-    # them per candidate, which moves F instead of C1 floats per candidate (measured on a KITTI
-    # frame, F 16, C1 64, K 16: see experiments/results/compressed.md); the paper's network
-    # (F 64 < C1 512 too, but 8x the matmul) projects once per pixel and gathers
-    if gather_features is None:
-        gather_features = 4 * fl.shape[-1] <= c1 and c1 <= 128
 
     def row(args):
         fl_r, fr_r, ct = args                                               # [W, F], [W, F], [W, K]
+        at, bt = model.apply(variables, fl_r, fr_r, method=MatchNet.project)   # [W, C1]
         cols = jnp.maximum(jnp.arange(w)[:, None] - ct, 0)
-        if gather_features:
-            at, bt = model.apply(variables, fl_r, fr_r[cols], method=MatchNet.project)   # [W, C1], [W, K, C1]
-        else:
-            at, bt = model.apply(variables, fl_r, fr_r, method=MatchNet.project)   # [W, C1]
-            bt = bt[cols]
-        logit = model.apply(variables, at[:, None, :] + bt, method=MatchNet.finish)
+        logit = model.apply(variables, at[:, None, :] + bt[cols], method=MatchNet.finish)
         return 1.0 - jax.nn.sigmoid(logit)
 
     return jax.lax.map(row, (fl, fr, cand), batch_size=rows_per_batch)
@@ -164,22 +139,6 @@ def _head_at_pixels(model, variables, fl, fr, ys, xs, cand, chunk: int = 2048) -
         return 1.0 - jax.nn.sigmoid(model.apply(variables, at[:, None, :] + bt, method=MatchNet.finish))
 
     return jax.lax.map(one, (padded(ys), padded(xs), padded(cand))).reshape(chunks * chunk, k)[:m]
-
-
-def pruned_dense_cost(net: NetConfig, variables, fl: jax.Array, fr: jax.Array, candidates: jax.Array,
-                      max_disp: int, rows_per_tile: int = 4, fill: float = 1.0) -> jax.Array:
-    """PRUNED MODE (not exact): the dense head only at ``candidates`` ``i32[H, W, K]``.
-
-    Every other entry of the ``f32[H, W, D]`` volume gets ``fill`` (the worst cost). With K
-    candidates per pixel this costs K / D of :func:`dense_cost`. Candidates must be distinct
-    per pixel; an index >= ``max_disp`` is ignored.
-    """
-    model = MatchNet(net)
-    h, w, _ = fl.shape
-    costs = _head_at(model, variables, fl, fr, jnp.minimum(candidates, max_disp - 1), rows_per_tile)
-    yy, xx = jnp.mgrid[:h, :w]
-    vol = jnp.full((h, w, max_disp), fill, jnp.float32)
-    return vol.at[yy[..., None], xx[..., None], candidates].set(costs, mode="drop")
 
 
 def candidate_config(config):
@@ -207,11 +166,6 @@ def candidate_volume(left: jax.Array, right: jax.Array, config, valid=None) -> j
     arms = aggregation.cross_arms(left, c.cbca.tau, c.cbca.arm_length, real_pixels(left.shape, valid))
     vol = aggregation.cbca(vol, arms, c.cbca.iterations_before, c.cbca.arm_length)
     return sgm(vol, left, right, c.sgm, None if valid is None else (0, valid[0], 0, valid[1]))
-
-
-def census_candidates(left: jax.Array, right: jax.Array, config, k: int, valid=None) -> jax.Array:
-    """``i32[H, W, K]``: the K disparities of lowest :func:`candidate_volume` cost, best first."""
-    return jax.lax.top_k(-candidate_volume(left, right, config, valid), k)[1].astype(jnp.int32)
 
 
 def _ks(config) -> tuple[int, int]:

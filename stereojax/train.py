@@ -1,4 +1,5 @@
-"""Training of the matching network on patch pairs (CPU, no pmap).
+"""Training of the matching network on patch pairs (no pmap: one device, or data-parallel over a
+mesh with sharded ``jax.jit``; see :func:`train_step`).
 
 ``train_step`` and ``eval_step`` are the jit boundaries. The batch of step t is drawn with
 ``fold_in(PRNGKey(seed), t)``, so a run resumed from a checkpoint at step t sees exactly the
@@ -27,9 +28,6 @@ import optax
 from . import checkpoint, losses
 from .config import _from_dict
 from .errors import ConfigError, TrainingError
-# the shipped-model registry lives in stereojax.models (the inference path does not import
-# this module); re-exported here for existing callers
-from .models import SHIPPED, WEIGHTS_DIR, load_model, shipped_weights, weights_for_input  # noqa: F401
 from .nets import MatchNet, NetConfig, init_params, similarity
 from .sampling import PatchData, SamplerConfig, build_patch_data, sample_batch, sample_distill_batch
 

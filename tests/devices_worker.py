@@ -23,7 +23,7 @@ def leaves(path):
 def main(out: Path) -> None:
     from stereojax.errors import ConfigError
     from stereojax.train import fit, train_preset
-    from tests.test_train import _samples, stereojax_sampler
+    from tests.helpers import tiny_sampler as stereojax_sampler, training_samples as _samples
 
     cfg = train_preset("tiny", sampler=stereojax_sampler(), steps=6, checkpoint_every=2, val_every=6)
     samples, val = _samples(), _samples(1)
@@ -55,7 +55,7 @@ def multihost(out: Path) -> None:
     """One process of a two-process run (JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES and
     JAX_PROCESS_ID set by the test): data-parallel over both processes' devices."""
     from stereojax.train import fit, maybe_initialize_distributed, train_preset
-    from tests.test_train import _samples, stereojax_sampler
+    from tests.helpers import tiny_sampler as stereojax_sampler, training_samples as _samples
 
     assert maybe_initialize_distributed()
     cfg = train_preset("tiny", sampler=stereojax_sampler(), steps=4, checkpoint_every=2, val_every=4)

@@ -9,7 +9,7 @@ import pytest
 
 from stereojax.cli import main
 from stereojax.data import io
-from tests.test_pipeline import _shifted_pair
+from tests.helpers import shifted_pair as _shifted_pair
 
 FAST = ["--max-disp", "16", "--method", "census"]
 

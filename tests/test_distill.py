@@ -15,7 +15,7 @@ from stereojax.nets import MatchNet, NetConfig, init_params, network_flops
 from stereojax.sampling import PatchData, SamplerConfig, sample_batch, sample_distill_batch
 from stereojax.train import TrainConfig, _pair_losses, fit, init_state, train_preset, train_step
 
-from .test_train import _samples, stereojax_sampler
+from .helpers import tiny_sampler as stereojax_sampler, training_samples as _samples
 
 P = 9
 

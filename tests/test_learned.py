@@ -53,15 +53,27 @@ def test_split_first_layer_equals_naive_head(head):
 
 
 def test_whole_image_features_equal_patch_features():
+    """tower_features (what the chain runs) on whole images: at every pixel the feature of the
+    9x9 patch of the normalised image around it; with a pair padded to a size bucket, the real
+    pixels get the unpadded features (statistics over the real region only)."""
     net = TINY["downsize"]
     v = _variables(net)
-    img = jnp.asarray(np.random.default_rng(1).normal(size=(20, 24)).astype(np.float32))
-    feats = learned_cost.image_features(net, v, img)
-    assert feats.shape == (20, 24, net.features)
-    y, x = 10, 12
-    patch = img[y - 4: y + 5, x - 4: x + 5][None, :, :, None]
-    f_patch = MatchNet(net).apply(v, patch, False, method=MatchNet.features)[0, 0, 0]
-    np.testing.assert_allclose(np.asarray(feats[y, x]), np.asarray(f_patch), atol=1e-5)
+    rng = np.random.default_rng(1)
+    left, right = (jnp.asarray(rng.uniform(0, 255, size=(20, 24)).astype(np.float32)) for _ in range(2))
+    fl, fr = learned_cost.tower_features(net, v, left, right)
+    assert fl.shape == fr.shape == (20, 24, net.features)
+    for img, feats in ((left, fl), (right, fr)):
+        norm = (img - img.mean()) / img.std()
+        for y, x in [(10, 12), (4, 4), (15, 19)]:
+            patch = norm[y - 4: y + 5, x - 4: x + 5][None, :, :, None]
+            f_patch = MatchNet(net).apply(v, patch, False, method=MatchNet.features)[0, 0, 0]
+            np.testing.assert_allclose(np.asarray(feats[y, x]), np.asarray(f_patch), atol=1e-4)
+    from stereojax.pipeline import pad_to
+
+    pl, pr = (jnp.asarray(pad_to(np.asarray(a), (32, 40))) for a in (left, right))
+    gl, gr = learned_cost.tower_features(net, v, pl, pr, valid=jnp.array([20, 24]))
+    np.testing.assert_allclose(np.asarray(gl[:16, :20]), np.asarray(fl[:16, :20]), atol=1e-4)
+    np.testing.assert_allclose(np.asarray(gr[:16, :20]), np.asarray(fr[:16, :20]), atol=1e-4)
 
 
 def test_cosine_cost_matches_direct_formula():
@@ -129,20 +141,28 @@ def test_sampler_offsets_and_interpolation():
     np.testing.assert_allclose(np.asarray(p[0, 1, :, 0]), [19.25 + 7.5, 20.25 + 7.5, 21.25 + 7.5], atol=1e-5)
 
 
-def test_pruned_mode_with_all_candidates_equals_exact():
-    net = TINY["downsize"]
+@pytest.mark.parametrize("net", [TINY["downsize"], dataclasses.replace(TINY["downsize"], features=4, widths=(16, 8))],
+                         ids=["narrow head", "narrow tower"])
+def test_pruned_mode_with_all_candidates_equals_exact(net):
+    """The head at the candidates (the chain's ranked_dense_cost) equals the exact head there,
+    and every other entry is the worst cost."""
+    from stereojax.config import CostConfig, StereoConfig
+
     v = _variables(net)
     rng = np.random.default_rng(3)
     fl = jnp.asarray(rng.normal(size=(6, 10, net.features)).astype(np.float32))
     fr = jnp.asarray(rng.normal(size=(6, 10, net.features)).astype(np.float32))
     exact = learned_cost.dense_cost(net, v, fl, fr, 5, rows_per_tile=4)
-    every = jnp.broadcast_to(jnp.arange(5, dtype=jnp.int32), (6, 10, 5))
-    pruned = learned_cost.pruned_dense_cost(net, v, fl, fr, every, 5, rows_per_tile=4)
-    np.testing.assert_allclose(np.asarray(pruned), np.asarray(exact), atol=1e-5)
-    some = every[..., :2]                                        # only d = 0, 1: the rest is fill
-    part = np.asarray(learned_cost.pruned_dense_cost(net, v, fl, fr, some, 5, rows_per_tile=4))
-    np.testing.assert_allclose(part[..., :2], np.asarray(exact)[..., :2], atol=1e-5)
-    assert np.all(part[..., 2:] == 1.0)
+    every = jnp.broadcast_to(jnp.arange(5, dtype=jnp.int32)[::-1], (6, 10, 5))
+
+    def pruned(k):
+        cfg = StereoConfig(max_disp=5, cost=CostConfig(method="learned", candidates=k, rows_per_tile=4))
+        return np.asarray(learned_cost.ranked_dense_cost(net, v, fl, fr, every[..., :k], cfg))
+
+    np.testing.assert_allclose(pruned(5), np.asarray(exact), atol=1e-5)
+    part = pruned(2)                                             # only d = 4, 3: the rest is fill
+    np.testing.assert_allclose(part[..., 3:], np.asarray(exact)[..., 3:], atol=1e-5)
+    assert np.all(part[..., :3] == 1.0)
 
 
 def test_chain_settings_travel_with_the_model(tmp_path):

@@ -9,23 +9,7 @@ import stereojax
 from stereojax import ConfigError, StereoConfig, StereoInputError
 from stereojax.config import RefineConfig
 
-
-def _textured(h, w, seed=0):
-    """A smooth random texture (census needs local structure, not white noise only)."""
-    import cv2
-
-    rng = np.random.default_rng(seed)
-    img = rng.random((h // 2 + 1, w // 2 + 1)).astype(np.float32)
-    img = cv2.resize(img, (w, h), interpolation=cv2.INTER_LINEAR)
-    return (img * 200 + rng.random((h, w)) * 40).astype(np.uint8)
-
-
-def _shifted_pair(d, h=40, w=64, seed=0):
-    left = _textured(h, w, seed)
-    rng = np.random.default_rng(seed + 1)
-    right = rng.integers(0, 256, (h, w)).astype(np.uint8)
-    right[:, : w - d] = left[:, d:]          # left(x) == right(x - d)
-    return left, right
+from .helpers import shifted_pair as _shifted_pair, textured as _textured
 
 
 @pytest.mark.parametrize("method", ["census", "sad"])

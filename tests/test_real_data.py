@@ -57,7 +57,8 @@ def test_shipped_kitti_model_classifies_validation_patches(data_root):
 
     from stereojax import checkpoint
     from stereojax.sampling import build_patch_data
-    from stereojax.train import TrainConfig, eval_step, shipped_weights
+    from stereojax.models import shipped_weights
+    from stereojax.train import TrainConfig, eval_step
 
     path = shipped_weights("kitti2015")
     model = stereojax.load_model(path)

@@ -32,8 +32,7 @@ from stereojax import memory
 from stereojax.cli import main
 from stereojax.data import io
 
-from .test_cli import _fake_kitti
-from .test_pipeline import _shifted_pair
+from .helpers import fake_kitti as _fake_kitti, shifted_pair as _shifted_pair
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--max-disp", "16", "--method", "census"]
@@ -508,7 +507,8 @@ def test_memory_guard_cli_exit_6(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(memory, "available_bytes", lambda: 16 * memory.GIB)
     from stereojax import pipeline
 
-    monkeypatch.setattr(pipeline, "disparity_grey", lambda *a, **k: pytest.fail("chain ran"))
+    # the CLI compiles its chain through compiled_chain: refused before that, nothing compiles or runs
+    monkeypatch.setattr(pipeline, "compiled_chain", lambda *a, **k: pytest.fail("chain compiled"))
     img = np.zeros((2160, 3840), np.uint8)
     img[::7, ::5] = 255
     io.write_png(tmp_path / "l.png", img)
@@ -521,11 +521,19 @@ def test_memory_guard_cli_exit_6(tmp_path, capsys, monkeypatch):
     assert list(out.iterdir()) == []
 
 
-def test_available_memory_is_read():
+def test_available_memory_is_read(monkeypatch):
+    """The default limit is the stated share of the memory available now (read from the
+    system, at most the machine's total); the environment variable and the argument override it."""
     avail = memory.available_bytes()
-    assert avail is not None and avail > 0
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    assert avail is not None and 0 < avail <= total
+    monkeypatch.delenv(memory.ENV_VAR, raising=False)
     limit, source = memory.memory_limit()
-    assert "available" in source or memory.ENV_VAR in source
+    assert limit == pytest.approx(memory.DEFAULT_SHARE * memory.available_bytes(), rel=0.05)
+    assert source.endswith("GiB available") and f"{memory.DEFAULT_SHARE:.0%}" in source
+    monkeypatch.setenv(memory.ENV_VAR, "1.5")
+    assert memory.memory_limit() == (1.5 * memory.GIB, f"{memory.ENV_VAR}=1.5")
+    assert memory.memory_limit(0.25) == (0.25 * memory.GIB, "memory_limit_gb=0.25")
 
 
 # ---- SIGKILL: predict leaves complete files or none --------------------------------------------

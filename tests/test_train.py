@@ -16,29 +16,7 @@ from stereojax import CheckpointError, ConfigError
 from stereojax.errors import TrainingError
 from stereojax.train import TrainConfig, fit, train_preset
 
-from .test_pipeline import _textured
-
-
-def _samples(n=2, h=40, w=96, d=5):
-    from stereojax.data.datasets import StereoSample
-
-    out = []
-    for i in range(n):
-        left = _textured(h, w, seed=10 + i)
-        right = np.roll(left, -d, axis=1)       # left(x) == right(x - d)
-        gt = np.full((h, w), float(d), np.float32)
-        out.append(StereoSample(name=f"s{i}", left=left, right=right, gt=gt,
-                                gt_valid=np.ones((h, w), bool)))
-    return out
-
-
-def _tiny(**kw):
-    return train_preset("tiny", sampler=stereojax_sampler(), **kw)
-
-
-def stereojax_sampler():
-    from stereojax.sampling import SamplerConfig
-    return SamplerConfig(v_pos=1.0, z_low=3.0, z_high=8.0)
+from .helpers import tiny_sampler as stereojax_sampler, tiny_train_config as _tiny, training_samples as _samples
 
 
 def _leaves(path):
@@ -72,7 +50,7 @@ def test_resume_in_process_is_exact(tmp_path):
 _CHILD = """
 import sys, time, numpy as np
 sys.path.insert(0, {root!r})
-from tests.test_train import _samples, _tiny
+from tests.helpers import tiny_train_config as _tiny, training_samples as _samples
 from stereojax.train import fit
 cfg = _tiny(steps=3000, checkpoint_every=50, log_every=50)
 fit(cfg, _samples(), None, {out!r}, progress=False, resume=True)
@@ -171,7 +149,7 @@ def test_fit_from_init_starts_at_those_weights_and_refuses_another_network(tmp_p
     cfg = _tiny(steps=4, seed=1, lr=1e-12)
     fit(cfg, _samples(), None, tmp_path / "b", progress=False, init=a)
     b = stereojax.load_model(tmp_path / "b" / "checkpoint.msgpack")
-    fresh = stereojax.train.init_params(cfg.net, jax.random.PRNGKey(1))
+    fresh = stereojax.nets.init_params(cfg.net, jax.random.PRNGKey(1))
     pa, pb = (jax.tree_util.tree_leaves(m.variables["params"]) for m in (a, b))
     assert max(float(np.abs(x - y).max()) for x, y in zip(pa, pb)) < 1e-6
     assert max(float(np.abs(x - y).max()) for x, y in zip(pa, jax.tree_util.tree_leaves(fresh["params"]))) > 1e-3
