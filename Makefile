@@ -90,6 +90,12 @@ middlebury-folds: runs/kitti2015_downsize/train_summary.json  ## Middlebury, 3 f
 compressed: $(STAMP)  ## issue 16: train the compressed candidates on KITTI 2015 1-15 (direct and distilled), score them, choose by experiments/PROTOCOL.md (~45 min) -> experiments/results/compressed.*
 	$(EXP)/compressed.py --data $(DATA)
 
+train-compact: $(STAMP)  ## the shipped compressed model (kitti2015_compact): tower 16, head 64-32, distilled from the shipped kitti2015 model, 30000 steps on KITTI 2015 1-15 (~17 min), then its chain settings searched on 1-15 (odd, ~12 min) -> runs/kitti2015_compact
+	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000015 --val-frames 000016-000020 \
+	  --preset cpu --features 16 --widths 64,32 --distill kitti2015 --steps 30000 --out runs/kitti2015_compact
+	$(EXP)/search_chain.py --dataset kitti2015 --frames 1,3,5,7,9,11,13,15 --rounds 1 --space local \
+	  --weights runs/kitti2015_compact/checkpoint.msgpack --start kitti2015_compact --tag _compact
+
 augment-compare: $(STAMP)  ## patch augmentation on/off, 2 seeds, KITTI selection fold 16-20 (~25 min) -> experiments/results/augment_compare.*
 	$(EXP)/augment_compare.py --data $(DATA) --steps 1500
 

@@ -27,9 +27,8 @@ import numpy as np
 from common import QUICK_CROP, Setup, _crop, _load, add_common_args, md_table, write_outputs
 
 import stereojax
-from stereojax import pipeline
 from stereojax.baselines import sgbm_disparity
-from stereojax.compile_cache import bucket_shape
+from stereojax.bench import warm_chain
 from stereojax.metrics import evaluate, mean_metrics
 from stereojax.models import learned_config, load_model, shipped_weights
 from stereojax.nets import NetConfig, network_flops
@@ -89,18 +88,6 @@ def chain_for(model_name_or_none, max_disp: int):
                                                              unsure_candidates=0)).validate()
 
 
-def bench_seconds(model, cfg, left, right, repeats: int = 2) -> float:
-    gl, gr = pipeline.prepare_pair(left, right, cfg)
-    chain, _ = pipeline.compiled_chain(bucket_shape(*gl.shape), cfg, model)
-    chain(gl, gr)
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        chain(gl, gr)
-        runs.append(time.perf_counter() - t0)
-    return float(np.median(runs))
-
-
 def score(samples, predict) -> dict:
     rows = []
     for s in samples:
@@ -149,7 +136,7 @@ def main():
         def predict(s, model=model, cfg=cfg):
             return stereojax.disparity(s.left, s.right, cfg, params=model)
 
-        secs = bench_seconds(model, cfg, bench.left, bench.right)
+        secs = warm_chain(bench.left, bench.right, cfg, model, repeats=2)["warm_s"]
         r_sel, r_val = score(sel, predict), score(val, predict)
         summary = json.loads((run / "train_summary.json").read_text())
         row = {"name": name, "features": model.net.features, "widths": list(model.net.widths),
@@ -166,7 +153,7 @@ def main():
         cfg = chain_for(None, md)
         c = cfg.cost
         evals = c.candidates + c.unsure_share * (c.unsure_candidates - c.candidates)
-        secs = bench_seconds(teacher, cfg, bench.left, bench.right, repeats=1)
+        secs = warm_chain(bench.left, bench.right, cfg, teacher, repeats=1)["warm_s"]
         r_val = score(val, lambda s: stereojax.disparity(s.left, s.right, cfg, params=teacher))
         full = {"name": "full (shipped kitti2015)", "features": teacher.net.features,
                 "widths": list(teacher.net.widths), "evals_per_pixel": evals,

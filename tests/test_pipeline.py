@@ -9,7 +9,7 @@ import stereojax
 from stereojax import ConfigError, StereoConfig, StereoInputError
 from stereojax.config import RefineConfig
 
-from .helpers import shifted_pair as _shifted_pair, textured as _textured
+from .helpers import shifted_pair as _shifted_pair
 
 
 @pytest.mark.parametrize("method", ["census", "sad"])
