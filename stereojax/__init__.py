@@ -4,17 +4,18 @@ Public API::
 
     import stereojax
     disp = stereojax.disparity(left, right, config=stereojax.preset("census", max_disp=228))
+    predict = stereojax.Predictor(config, model)  # compiled once per size bucket, many frames
     inter = stereojax.stages(left, right)          # every intermediate result
 """
 
 from .config import AggregationConfig, CostConfig, RefineConfig, SGMConfig, StereoConfig, preset
 from .errors import (CheckpointError, ConfigError, InputWarning, MemoryBudgetError, OutputError,
                      StereoError, StereoInputError)
-from .pipeline import disparity, stages
+from .pipeline import Predictor, disparity, stages
 from .models import load_model
 
 __all__ = [
-    "disparity", "stages", "preset", "load_model",
+    "Predictor", "disparity", "stages", "preset", "load_model",
     "StereoConfig", "CostConfig", "AggregationConfig", "SGMConfig", "RefineConfig",
     "StereoError", "StereoInputError", "ConfigError", "CheckpointError", "OutputError",
     "MemoryBudgetError", "InputWarning",

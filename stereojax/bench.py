@@ -144,18 +144,18 @@ def _chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
 def warm_chain(left, right, cfg, model=None, repeats: int = 3) -> dict:
     """The whole chain of ``cfg`` (and ``model``) on one pair, compiled for its size bucket:
     ``{"warm_s": median of repeats after one warm-up run, "compile_s", "disparity"}``."""
-    from . import pipeline
-    from .compile_cache import bucket_shape
+    from .pipeline import Predictor
 
-    gl, gr = pipeline.prepare_pair(left, right, cfg)
+    predictor = Predictor(cfg, model)
+    gl, gr = predictor.prepare(left, right)
     t0 = time.perf_counter()
-    chain, _ = pipeline.compiled_chain(bucket_shape(*gl.shape), cfg, model)
+    predictor.compiled(*gl.shape)
     compile_s = time.perf_counter() - t0
-    disp = chain(gl, gr)
+    disp = predictor.run(gl, gr)
     runs = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        disp = chain(gl, gr)
+        disp = predictor.run(gl, gr)
         runs.append(time.perf_counter() - t0)
     return {"warm_s": float(np.median(runs)), "compile_s": compile_s, "disparity": disp}
 

@@ -12,7 +12,6 @@ import dataclasses
 import json
 import os
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Sequence
@@ -41,24 +40,6 @@ def _config_file(args):
     return StereoConfig.from_json(text)
 
 
-def _config(args, max_disp: int):
-    from .config import preset
-
-    cfg = _config_file(args)
-    if cfg is not None:
-        return cfg.with_max_disp(max_disp)
-    if args.method == "learned":
-        from .models import learned_config
-
-        # the chain settings searched for this model travel with it (NAME.json beside the weights)
-        cfg = learned_config(getattr(args, "weights", None), max_disp)
-    else:
-        cfg = preset(args.method, max_disp)
-    if args.method == "learned" and getattr(args, "exact_head", False):
-        cfg = dataclasses.replace(cfg, cost=dataclasses.replace(cfg.cost, candidates=0)).validate()
-    return cfg
-
-
 def _check_out_dir(path: Path) -> Path:
     """Create the output folder and check that it is writable before any long computation."""
     try:
@@ -70,62 +51,15 @@ def _check_out_dir(path: Path) -> Path:
     return path
 
 
-_MODELS: dict = {}
-_MODELS_LOCK = threading.Lock()
+def _resolve(args, width: int = 0, height: int = 0, dataset: str | None = None, max_disp: int | None = None):
+    """What runs for this command line and input (:func:`stereojax.models.resolve`)."""
+    from .models import resolve
 
-
-def _resolve_method(args, width: int, height: int, dataset: str | None = None) -> None:
-    """Turn ``--method best`` (the default) into ``learned`` with the shipped model for this
-    input (:func:`stereojax.models.weights_for_input`), or ``census`` when that model is not
-    shipped; a shipped name given to ``--weights`` (kitti2015, kitti2015_compact, middlebury)
-    becomes its path."""
-    from .models import SHIPPED, shipped_weights, weights_for_input
-
-    if getattr(args, "weights", None) in SHIPPED:
-        args.weights = str(shipped_weights(args.weights))
-    if args.method != "best":
-        return
-    from_file = _config_file(args)
-    if from_file is not None and from_file.cost.method != "learned":
-        args.method = from_file.cost.method       # a classical chain from --config
-        return
-    if getattr(args, "weights", None):
-        args.method = "learned"
-        return
-    path = weights_for_input(width, height, dataset)
-    # the same model and chain settings on every backend (the exact head only on request)
-    args.method, args.weights = ("learned", str(path)) if path else ("census", None)
-
-
-def _model(args):
-    """The LearnedModel of ``--weights`` (loaded once per process), or None for classical costs."""
-    weights = getattr(args, "weights", None)
-    if args.method != "learned":
-        if weights:
-            raise ConfigError(f"--weights needs --method learned or best (got --method {args.method})")
-        return None
-    if not weights:
-        from .models import shipped_weights
-
-        weights = str(shipped_weights("kitti2015"))
-    with _MODELS_LOCK:                  # map_frames workers may ask at the same time
-        if weights not in _MODELS:
-            from .models import load_model
-
-            _MODELS[weights] = load_model(weights)
-        return _MODELS[weights]
-
-
-def _describe(args) -> str:
-    if args.method == "learned":
-        from .models import shipped_name, shipped_weights
-
-        weights = args.weights or str(shipped_weights("kitti2015"))
-        name = shipped_name(weights)
-        label = f"shipped model {name}" if name else f"weights {Path(weights).name}"
-        head = ", exact head (every disparity)" if getattr(args, "exact_head", False) else ""
-        return f"learned cost, {label}{head}"
-    return f"{args.method} cost"
+    if max_disp is None:
+        max_disp = getattr(args, "max_disp", None)
+    md = DEFAULT_MAX_DISP if max_disp is None else max_disp
+    return resolve(args.method, getattr(args, "weights", None), _config_file(args), width, height, dataset,
+                   md, getattr(args, "exact_head", False))
 
 
 class _Phases:
@@ -162,18 +96,18 @@ def _run_pipeline(left, right, cfg, model=None, phases: _Phases | None = None):
 
     phases = phases or _Phases(quiet=True)
     device = current_device()           # the map_frames worker's device, or None
-    gl, gr = pipeline.prepare_pair(left, right, cfg)
+    predictor = pipeline.Predictor(cfg, model, device)
+    gl, gr = predictor.prepare(left, right)
     shape = bucket_shape(*gl.shape)
-    if pipeline.is_compiled(shape, cfg, model, device):
-        chain, _ = pipeline.compiled_chain(shape, cfg, model, device)
+    if predictor.is_compiled(*gl.shape):
         compile_s = 0.0
     else:
         phases.start(f"compiling the {cfg.cost.method} chain for {shape[1]}x{shape[0]} "
                      f"(size bucket of {gl.shape[1]}x{gl.shape[0]}), {cfg.max_disp} disparities")
-        chain, _ = pipeline.compiled_chain(shape, cfg, model, device)
+        predictor.compiled(*gl.shape)
         compile_s = phases.done()
     phases.start(f"computing the disparity of {gl.shape[1]}x{gl.shape[0]}")
-    disp = chain(gl, gr)
+    disp = predictor.run(gl, gr)
     secs = phases.done()
     return disp, {"seconds": secs, "compile_s": compile_s, "bucket": [int(shape[0]), int(shape[1])],
                   "device": str(device if device is not None else jax_devices()[0])}
@@ -302,19 +236,17 @@ def _predict_one(args, left_p, right_p, out: Path, stem_dir: str, calib, phases)
     from .data.datasets import load_pair
 
     sample = load_pair(left_p, right_p)
-    run_args = argparse.Namespace(**vars(args))
-    _resolve_method(run_args, sample.left.shape[1], sample.left.shape[0])
-    cfg = _config(run_args, args.max_disp)
-    model = _model(run_args)
-    disp, timings = _run_pipeline(sample.left, sample.right, cfg, model, phases)
+    run = _resolve(args, sample.left.shape[1], sample.left.shape[0])
+    cfg = run.config
+    disp, timings = _run_pipeline(sample.left, sample.right, cfg, run.model(), phases)
     target = out / stem_dir if stem_dir else out
     target.mkdir(parents=True, exist_ok=True)
     written = _write_prediction(target, "", disp, calib, sample.left, ply=args.ply)
     write_json(target / "config.json", cfg.to_dict())
     write_json(target / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                          "max_disp": cfg.max_disp, "method": cfg.cost.method,
-                                         "chosen": _describe(run_args)})
-    return disp, timings, written + ["config.json", "timings.json"], run_args
+                                         "chosen": run.description})
+    return disp, timings, written + ["config.json", "timings.json"], run
 
 
 def cmd_predict(args) -> int:
@@ -329,8 +261,8 @@ def cmd_predict(args) -> int:
     enable()
     if not batch:
         _, left_p, right_p = pairs[0]
-        disp, timings, written, run_args = _predict_one(args, left_p, right_p, out, "", calib, _Phases())
-        print(f"disparity {disp.shape[1]}x{disp.shape[0]} ({_describe(run_args)}), {timings['seconds']:.2f} s "
+        disp, timings, written, run = _predict_one(args, left_p, right_p, out, "", calib, _Phases())
+        print(f"disparity {disp.shape[1]}x{disp.shape[0]} ({run.description}), {timings['seconds']:.2f} s "
               f"(+ {timings['compile_s']:.1f} s compiling) -> {out} ({', '.join(written)})")
         return 0
     return _predict_batch(args, pairs, out, calib)
@@ -365,10 +297,10 @@ def _predict_batch(args, pairs, out: Path, calib) -> int:
                 failed.append({"frame": name, "left": str(left_p), "right": str(right_p), "error": str(exc)})
                 tqdm.write(f"stereojax predict: error: {name}: {exc}", file=sys.stderr)
                 continue
-            disp, timings, _, run_args = result
-            if _describe(run_args) not in described:
-                described.add(_describe(run_args))
-                tqdm.write(f"stereojax predict: method: {_describe(run_args)}", file=sys.stderr)
+            disp, timings, _, run = result
+            if run.description not in described:
+                described.add(run.description)
+                tqdm.write(f"stereojax predict: method: {run.description}", file=sys.stderr)
             rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
                          "device": timings["device"],
                          "bucket": timings["bucket"], "width": int(disp.shape[1]), "height": int(disp.shape[0]),
@@ -423,12 +355,12 @@ def cmd_evaluate(args) -> int:
     enable()
     frames = _parse_frames(args.frames)
     items = load_dataset(args.data, args.dataset, frames=frames, gt=args.gt)
-    _resolve_method(args, 0, 0, args.dataset)
-    print(f"method: {_describe(args)}", file=sys.stderr)
+    run = _resolve(args, 0, 0, args.dataset)
+    print(f"method: {run.description}", file=sys.stderr)
     devices = local_devices(args.devices)
     if len(devices) > 1:
         print(f"{len(devices)} devices, one frame each at a time", file=sys.stderr)
-    model = _model(args)
+    model = run.model()
 
     def work(item):
         frame_id, load = item
@@ -436,7 +368,7 @@ def cmd_evaluate(args) -> int:
         if sample.gt is None:
             return frame_id, sample, None, None, None
         max_disp = search_range(args.dataset, sample, args.max_disp)
-        disp, timings = _run_pipeline(sample.left, sample.right, _config(args, max_disp), model)
+        disp, timings = _run_pipeline(sample.left, sample.right, run.with_max_disp(max_disp).config, model)
         return frame_id, sample, max_disp, disp, timings
 
     per_frame, missing_gt = [], []
@@ -474,7 +406,7 @@ def cmd_evaluate(args) -> int:
         # compilation is timed apart (compile_s), so every frame's seconds are warm
         summary[m]["seconds_warm"] = float(np.mean([r[m]["seconds"] for r in per_frame]))
     result = {"dataset": args.dataset, "gt": args.gt, "fill": args.fill, "frames": per_frame,
-              "mean": summary, "config": _config(args, per_frame[0]["max_disp"]).to_dict()}
+              "mean": summary, "config": run.with_max_disp(per_frame[0]["max_disp"]).config.to_dict()}
     write_json(out / "results.json", result)
     table = format_table(summary)
     with io.atomic_output(out / "results.md") as tmp:
@@ -508,14 +440,14 @@ def cmd_demo(args) -> int:
     out = _check_out_dir(Path(args.out))
     enable()
     sample = load_builtin_sample()
-    _resolve_method(args, sample.left.shape[1], sample.left.shape[0], "middlebury")
     max_disp = args.max_disp or int(sample.max_disp_hint or 70)
-    cfg = _config(args, max_disp)
+    run = _resolve(args, sample.left.shape[1], sample.left.shape[0], "middlebury", max_disp)
+    cfg = run.config
     print(f"built-in sample: {sample.name} {sample.left.shape[1]}x{sample.left.shape[0]}, "
-          f"{max_disp} disparities, {_describe(args)}")
+          f"{max_disp} disparities, {run.description}")
     phases = _Phases()
-    phases.start("loading the model" if args.method == "learned" else "preparing")
-    model = _model(args)
+    phases.start("loading the model" if run.method == "learned" else "preparing")
+    model = run.model()
     phases.done()
     disp, timings = _run_pipeline(sample.left, sample.right, cfg, model, phases)
     phases.start("writing disparity, depth, point cloud and error map")

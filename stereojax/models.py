@@ -9,6 +9,7 @@ training loop.
 from __future__ import annotations
 
 import dataclasses
+import threading
 from pathlib import Path
 
 from .errors import CheckpointError
@@ -118,3 +119,83 @@ def load_model(path, expect_net=None):
     template = {"params": variables["params"], "batch_stats": variables["batch_stats"]}
     state, _ = checkpoint.load(path, template)
     return LearnedModel(net, state)
+
+
+@dataclasses.dataclass(frozen=True)
+class Resolved:
+    """What runs for an input (:func:`resolve`): the cost method ("learned" or a classical
+    one), the weights file of a learned cost, the chain configuration, and a description."""
+
+    method: str
+    weights: Path | None
+    config: object
+    exact_head: bool = False
+    from_file: bool = False
+
+    @property
+    def description(self) -> str:
+        """One line that says what runs, e.g. "learned cost, shipped model kitti2015"."""
+        if self.method != "learned":
+            return f"{self.method} cost"
+        name = shipped_name(self.weights)
+        label = f"shipped model {name}" if name else f"weights {Path(self.weights).name}"
+        head = ", exact head (every disparity)" if self.exact_head and not self.from_file else ""
+        return f"learned cost, {label}{head}"
+
+    def with_max_disp(self, max_disp: int) -> "Resolved":
+        return dataclasses.replace(self, config=self.config.with_max_disp(max_disp))
+
+    def model(self):
+        """The :class:`~stereojax.learned_cost.LearnedModel` of a learned cost (loaded once per
+        process and weights file), None for a classical one."""
+        if self.method != "learned":
+            return None
+        key = str(self.weights)
+        with _LOADED_LOCK:                  # map_frames workers may ask at the same time
+            if key not in _LOADED:
+                _LOADED[key] = load_model(self.weights)
+            return _LOADED[key]
+
+
+_LOADED: dict = {}
+_LOADED_LOCK = threading.Lock()
+
+
+def resolve(method: str = "best", weights=None, config=None, width: int = 0, height: int = 0,
+            dataset: str | None = None, max_disp: int = 228, exact_head: bool = False) -> Resolved:
+    """What runs for an input, as values (nothing is changed in place).
+
+    method: "best" (the default: the shipped model that fits the input, :func:`weights_for_input`,
+    or census when it is not shipped), "learned", "census" or "sad". weights: a checkpoint path
+    or a shipped name (learned and best only). config: a StereoConfig that replaces the chain
+    settings (a classical one turns best into that method). width, height, dataset: the input,
+    for best. exact_head: the learned head at every disparity instead of the candidates.
+    """
+    from .config import preset
+    from .errors import ConfigError
+
+    if weights in SHIPPED:
+        weights = shipped_weights(weights)
+    if method == "best":
+        if config is not None and config.cost.method != "learned":
+            method = config.cost.method          # a classical chain from the config
+        elif weights:
+            method = "learned"
+        else:
+            # the same model and chain settings on every backend (the exact head only on request)
+            path = weights_for_input(width, height, dataset)
+            method, weights = ("learned", path) if path else ("census", None)
+    if method != "learned" and weights:
+        raise ConfigError(f"--weights needs --method learned or best (got --method {method})")
+    if method == "learned" and not weights:
+        weights = shipped_weights("kitti2015")
+    if config is not None:
+        cfg = config.with_max_disp(max_disp)
+    elif method == "learned":
+        # the chain settings searched for this model travel with it (NAME.json beside the weights)
+        cfg = learned_config(weights, max_disp)
+        if exact_head:
+            cfg = dataclasses.replace(cfg, cost=dataclasses.replace(cfg.cost, candidates=0)).validate()
+    else:
+        cfg = preset(method, max_disp)
+    return Resolved(method, Path(weights) if weights else None, cfg, bool(exact_head), config is not None)

@@ -259,83 +259,139 @@ def pad_to(grey: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 class CompiledChain:
-    """The chain compiled once for a size bucket and a config (ahead of time, so that compiling
-    and running can be timed and reported apart). Call it with grey ``f32[H, W]`` images of any
-    size in the bucket; it pads, runs and crops back exactly. device: the device it runs on
-    (None: the default device); the network parameters are copied there once.
+    """The chain's programs compiled once for a size bucket, a config, a network architecture
+    and a device (ahead of time, so that compiling and running can be timed and reported apart).
+    It holds no weights: the network's variables are an argument of every call, so one compiled
+    chain serves every model of that architecture and can never run another model's weights.
+    Call it with grey ``f32[H, W]`` images of any size in the bucket; it pads, runs and crops
+    back exactly.
     """
 
-    def __init__(self, shape: tuple[int, int], config: StereoConfig, variables=None, net=None,
-                 device=None):
+    def __init__(self, shape: tuple[int, int], config: StereoConfig, net=None, variables=None, device=None):
+        """variables: the variables (or arrays of their shapes) the chain will be called with."""
         self.shape, self.config, self.net, self.device = shape, config, net, device
         sharding = None
         if device is not None:
             from jax.sharding import SingleDeviceSharding
 
             sharding = SingleDeviceSharding(device)
-            variables = None if variables is None else jax.device_put(variables, device)
-        self.variables = variables
+        var_spec = None if variables is None else jax.tree_util.tree_map(
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), variables)
         spec = jax.ShapeDtypeStruct(shape, jnp.float32, sharding=sharding)
         valid = jax.ShapeDtypeStruct((2,), jnp.int32, sharding=sharding)
         self._split = _split_learned(config, net)
         if self._split:
-            self._front = learned_front.lower(spec, spec, valid, config, variables, net).compile()
-            fl, fr, ranked = jax.eval_shape(lambda a, b, v: learned_front(a, b, v, config, variables, net),
-                                            spec, spec, valid)
+            self._front = learned_front.lower(spec, spec, valid, config, var_spec, net).compile()
+            fl, fr, ranked = jax.eval_shape(lambda a, b, v, w: learned_front(a, b, v, config, w, net),
+                                            spec, spec, valid, var_spec)
             if sharding is not None:
                 fl, fr, ranked = (jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
                                   for x in (fl, fr, ranked))
-            self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, config, variables, net).compile()
+            self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, config, var_spec, net).compile()
         else:
-            self._compiled = disparity_padded.lower(spec, spec, valid, config, variables, net).compile()
+            self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net).compile()
 
-    def __call__(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    def __call__(self, left: np.ndarray, right: np.ndarray, variables=None) -> np.ndarray:
+        """Disparity ``f32[H, W]`` of a grey pair in the bucket; variables: the network's, on
+        this chain's device (:class:`Predictor` puts them there once)."""
         h, w = left.shape
         if h > self.shape[0] or w > self.shape[1]:
             raise ValueError(f"a {h}x{w} pair does not fit the {self.shape[0]}x{self.shape[1]} bucket")
         lp, rp = pad_to(left, self.shape), pad_to(right, self.shape)
         lp, rp, valid = jax.device_put((lp, rp, np.array([h, w], np.int32)), self.device)
         if self._split:
-            fl, fr, ranked = self._front(lp, rp, valid, self.variables)
-            out = self._back(lp, rp, valid, fl, fr, ranked, self.variables)
+            fl, fr, ranked = self._front(lp, rp, valid, variables)
+            out = self._back(lp, rp, valid, fl, fr, ranked, variables)
         else:
-            out = self._compiled(lp, rp, valid, self.variables)
+            out = self._compiled(lp, rp, valid, variables)
         return np.asarray(out)[:h, :w]
 
 
+#: the compiled chains of this process, keyed on what a program depends on (bucket, config,
+#: architecture, device, the shapes of the variables), never on weights; the most recently used
+#: few per device are kept (a batch of mixed sizes would otherwise hoard programs)
 _COMPILED: dict = {}
-
-
 _COMPILED_LOCK = threading.Lock()
+_KEEP_PER_DEVICE = 4
 
 
-def _compiled_key(shape, config, params, device=None):
-    variables, net = _model_args(config, params)
-    return (tuple(shape), config, net, id(variables), device), variables, net
+def _variable_shapes(variables):
+    if variables is None:
+        return None
+    leaves, tree = jax.tree_util.tree_flatten(variables)
+    return tree, tuple((tuple(x.shape), str(x.dtype)) for x in leaves)
 
 
-def is_compiled(shape: tuple[int, int], config: StereoConfig, params=None, device=None) -> bool:
-    """Whether :func:`compiled_chain` has this bucket and config compiled already (for this
-    device)."""
-    return _compiled_key(shape, config, params, device)[0] in _COMPILED
-
-
-def compiled_chain(shape: tuple[int, int], config: StereoConfig, params=None,
+def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, variables=None,
                    device=None) -> tuple[CompiledChain, bool]:
-    """(the :class:`CompiledChain` of a bucket shape and config, whether it was compiled now).
-    The latest one per device is kept for the life of the process (a batch of mixed sizes
-    compiles again when the bucket changes; the persistent compilation cache makes that a disk
-    read). device: None (the default device) or one of :func:`stereojax.devices.local_devices`;
-    safe to call from the worker threads of :func:`stereojax.devices.map_frames`."""
-    key, variables, net = _compiled_key(shape, config, params, device)
+    """(the :class:`CompiledChain` of a bucket shape, config, architecture and device, whether it
+    was compiled now); ``variables`` give the shapes only. Safe to call from the worker threads
+    of :func:`stereojax.devices.map_frames`. Most callers want :class:`Predictor`."""
+    key = (tuple(shape), config, net, device, _variable_shapes(variables))
     with _COMPILED_LOCK:
         fresh = key not in _COMPILED
         if fresh:
-            # one bucket per device at a time: a batch of mixed sizes would hoard memory
-            for old in [k for k in _COMPILED if k[-1] == device]:
+            mine = [k for k in _COMPILED if k[3] == device]
+            for old in mine[:max(0, len(mine) - _KEEP_PER_DEVICE + 1)]:
                 del _COMPILED[old]
-            _COMPILED[key] = CompiledChain(tuple(shape), config, variables, net, device)
+            _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device)
+        else:   # the most recently used last
+            _COMPILED[key] = _COMPILED.pop(key)
         return _COMPILED[key], fresh
+
+
+class Predictor:
+    """The one inference path of stereojax: a chain configuration, a model (a
+    :class:`~stereojax.learned_cost.LearnedModel` when ``config.cost.method == "learned"``, else
+    None) and a device (None: the default one). Calling it on a pair checks and converts the
+    images (:func:`prepare_pair`, memory guard included), pads them to their size bucket, runs
+    the chain compiled once per bucket (:func:`compiled_chain`) and crops back::
+
+        predict = Predictor(config, model)
+        disp = predict(left, right)               # f32[H, W]
+        inter = predict.stages(left, right)       # every intermediate result
+
+    The model's variables are put on the device once, here, and passed to every run.
+    """
+
+    def __init__(self, config: StereoConfig | None = None, model=None, device=None, memory_limit_gb=None):
+        self.config = (config or StereoConfig()).validate()
+        variables, self.net = _model_args(self.config, model)
+        self.model, self.device, self.memory_limit_gb = model, device, memory_limit_gb
+        if variables is not None and device is not None:
+            variables = jax.device_put(variables, device)
+        self.variables = variables
+
+    def prepare(self, left, right) -> tuple[np.ndarray, np.ndarray]:
+        """Grey ``f32[H, W]`` images of a pair, checked against this predictor's config."""
+        return prepare_pair(left, right, self.config, self.memory_limit_gb)
+
+    def _key(self, height: int, width: int):
+        from .compile_cache import bucket_shape
+
+        return bucket_shape(height, width), self.config, self.net, self.device, _variable_shapes(self.variables)
+
+    def is_compiled(self, height: int, width: int) -> bool:
+        """Whether the chain for a ``height x width`` pair is compiled in this process already."""
+        return self._key(height, width) in _COMPILED
+
+    def compiled(self, height: int, width: int) -> tuple[CompiledChain, bool]:
+        """(the compiled chain for a ``height x width`` pair, whether it was compiled now)."""
+        shape, config, net, device, _ = self._key(height, width)
+        return compiled_chain(shape, config, net, self.variables, device)
+
+    def run(self, gl: np.ndarray, gr: np.ndarray) -> np.ndarray:
+        """The chain on grey images already checked by :meth:`prepare`."""
+        chain, _ = self.compiled(*gl.shape)
+        return chain(gl, gr, self.variables)
+
+    def __call__(self, left, right) -> np.ndarray:
+        """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair."""
+        return self.run(*self.prepare(left, right))
+
+    def stages(self, left, right) -> dict[str, np.ndarray]:
+        """Every intermediate result (see :func:`stages`)."""
+        return stages(left, right, self.config, self.model, self.memory_limit_gb)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
@@ -375,21 +431,11 @@ def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=
     bad input and :class:`MemoryBudgetError` before allocating a chain that would not fit.
     """
     config = config or StereoConfig()
+    if bucket:
+        return Predictor(config, params, memory_limit_gb=memory_limit_gb)(left, right)
     variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb)
-    if not bucket:
-        return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
-    from .compile_cache import bucket_shape
-
-    shape = bucket_shape(*gl.shape)
-    valid = np.array(gl.shape, np.int32)
-    lp, rp = pad_to(gl, shape), pad_to(gr, shape)
-    if _split_learned(config, net):
-        fl, fr, ranked = learned_front(lp, rp, valid, config, variables, net)
-        out = learned_back(lp, rp, valid, fl, fr, ranked, config, variables, net)
-    else:
-        out = disparity_padded(lp, rp, valid, config, variables, net)
-    return np.asarray(out)[:gl.shape[0], :gl.shape[1]]
+    return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
 
 
 def stages(left: Any, right: Any, config: StereoConfig | None = None, params=None,

@@ -143,10 +143,9 @@ def test_demo_on_the_builtin_sample(tmp_path, capsys):
 
 
 def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):
-    import argparse
+    from pathlib import Path
 
-    from stereojax.cli import _resolve_method
-    from stereojax.models import BEST, SHIPPED, WEIGHTS_DIR, weights_for_input
+    from stereojax.models import BEST, SHIPPED, WEIGHTS_DIR, resolve as models_resolve, weights_for_input
 
     kitti = WEIGHTS_DIR / f"{SHIPPED[BEST['kitti']]}.msgpack"          # what best runs on KITTI
     full = WEIGHTS_DIR / "kitti2015_downsize_relaxed.msgpack"          # the paper's network
@@ -158,10 +157,12 @@ def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):
     assert weights_for_input(741, 500) == (mb if mb.is_file() else None)
     assert weights_for_input(1242, 375, "middlebury") == (mb if mb.is_file() else None)
 
-    def resolve(**kw):
-        args = argparse.Namespace(**{"method": "best", "weights": None, "config": None, **kw})
-        _resolve_method(args, 1242, 375)
-        return args.method, args.weights
+    def resolve(config=None, **kw):
+        from stereojax.config import StereoConfig
+
+        cfg = StereoConfig.from_json(Path(config).read_text()) if config else None
+        run = models_resolve(config=cfg, width=1242, height=375, **kw)
+        return run.method, (str(run.weights) if run.weights else None)
 
     assert resolve() == ("learned", str(kitti))
     assert resolve(method="census") == ("census", None)
@@ -182,26 +183,28 @@ def stereojax_models():
 
 def test_best_runs_the_same_chain_on_every_backend_and_the_exact_head_on_request(monkeypatch):
     """`best` never switches to the exact head by backend; --exact-head asks for it."""
-    import argparse
-
     import jax
 
-    from stereojax.cli import _config, _describe, _resolve_method
-    from stereojax.models import learned_config, weights_for_input
+    from stereojax.models import learned_config, resolve, weights_for_input
 
     seen = []
     for backend in ("cpu", "gpu"):
         monkeypatch.setattr(jax, "default_backend", lambda b=backend: b)
-        args = argparse.Namespace(method="best", weights=None, config=None)
-        _resolve_method(args, 1242, 375)
-        seen.append((_config(args, 228), _describe(args)))
+        run = resolve("best", width=1242, height=375)
+        seen.append((run.config, run.description))
     assert seen[0] == seen[1]
     assert seen[0][0] == learned_config(weights_for_input(1242, 375), 228)
     assert seen[0][0].cost.candidates > 0 and "exact" not in seen[0][1]
     assert "shipped model kitti2015" in seen[0][1]
-    args = argparse.Namespace(method="best", weights=None, config=None, exact_head=True)
-    _resolve_method(args, 1242, 375)
-    assert _config(args, 228).cost.candidates == 0 and "exact head" in _describe(args)
+    run = resolve("best", width=1242, height=375, exact_head=True)
+    assert run.config.cost.candidates == 0 and "exact head" in run.description
+    with pytest.raises(stereojax_config_error(), match="--weights needs --method learned"):
+        resolve("census", weights="kitti2015")
+
+
+def stereojax_config_error():
+    from stereojax.errors import ConfigError
+    return ConfigError
 
 
 def stereojax_preset_json(name):

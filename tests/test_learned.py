@@ -182,11 +182,9 @@ def test_chain_settings_travel_with_the_model(tmp_path):
     assert cfg.sgm.p1 == 0.7 and cfg.refine.median_size == 3 and cfg.max_disp == 64
     assert cfg.sgm.p2 == preset("learned").sgm.p2 and cfg.cost == preset("learned", 64).cost
     # the CLI's --method learned runs the model's settings
-    from stereojax.cli import _config, build_parser
+    from stereojax.models import resolve
 
-    args = build_parser().parse_args(["predict", "a", "b", "--out", "o", "--method", "learned",
-                                      "--weights", str(w)])
-    assert _config(args, 64) == cfg
+    assert resolve("learned", str(w), max_disp=64).config == cfg
     (tmp_path / "m.json").write_text(json.dumps({"chain": {"sgm": {"p7": 1}}}))
     with pytest.raises(ConfigError, match="sgm.p7"):
         learned_config(w, 64)

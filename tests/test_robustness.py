@@ -469,9 +469,9 @@ def test_memory_guard_refuses_a_4k_pair_before_allocating(monkeypatch):
     def never(*a, **k):
         raise AssertionError("the jitted chain must not run")
 
-    monkeypatch.setattr(pipeline, "disparity_grey", never)
-    monkeypatch.setattr(pipeline, "disparity_padded", never)
-    monkeypatch.setattr(pipeline, "_stages_grey", never)
+    monkeypatch.setattr(pipeline, "compiled_chain", never)      # disparity() and the CLI compile through it
+    monkeypatch.setattr(pipeline, "disparity_grey", never)      # disparity(bucket=False)
+    monkeypatch.setattr(pipeline, "_stages_grey", never)        # stages()
     left = np.zeros((2160, 3840), np.uint8)
     cfg = stereojax.preset("census", 228)
     with pytest.raises(MemoryBudgetError) as exc:

@@ -157,3 +157,44 @@ def test_inference_path_does_not_import_training(tmp_path):
             "print('stereojax.train' in sys.modules, 'optax' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
     assert out.stdout.split() == ["False", "False"], out.stdout
+
+
+def test_a_second_model_of_the_same_shapes_never_runs_the_first_ones_weights():
+    """Compiled chains are shared by every model of one architecture and hold no weights: after
+    a first model is dropped, a second one with the same shapes (even one that gets the first's
+    address) computes its own disparity, on the default device and on an explicit one."""
+    import gc
+
+    import jax
+
+    from stereojax.learned_cost import LearnedModel
+    from stereojax.nets import NetConfig, init_params
+    from stereojax.pipeline import Predictor
+
+    from .helpers import shifted_pair
+
+    net = NetConfig(features=4, widths=(8, 4))
+    cfg = stereojax.StereoConfig(max_disp=12, cost=stereojax.CostConfig(method="learned", candidates=4,
+                                                                         rows_per_tile=8))
+    left, right = shifted_pair(3, h=32, w=64)
+
+    def model(seed):
+        v = init_params(net, jax.random.PRNGKey(seed))
+        return LearnedModel(net, jax.tree_util.tree_map(np.asarray, v))
+
+    for device in (None, jax.devices()[0]):
+        first = model(0)
+        address = id(first.variables)
+        out_first = Predictor(cfg, first, device)(left, right)
+        del first
+        gc.collect()
+        for seed in range(1, 60):          # try to be given the first model's address
+            second = model(seed)
+            if id(second.variables) == address:
+                break
+        predict = Predictor(cfg, second, device)
+        assert predict.is_compiled(*left.shape)              # the program is shared ...
+        out_second = predict(left, right)
+        expect = stereojax.disparity(left, right, cfg, params=second, bucket=False)
+        np.testing.assert_allclose(out_second, expect, atol=1e-4)   # ... the weights are not
+        assert np.abs(out_second - out_first).max() > 0.5
