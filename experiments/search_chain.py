@@ -35,7 +35,7 @@ import functools  # noqa: E402
 import jax  # noqa: E402
 
 from stereojax import pipeline  # noqa: E402
-from stereojax.cli import _parse_frames  # noqa: E402
+from stereojax.data.datasets import parse_frames  # noqa: E402
 from stereojax.compile_cache import bucket_shape  # noqa: E402
 from stereojax.config import StereoConfig, preset  # noqa: E402
 from stereojax.data.datasets import load_dataset, search_range  # noqa: E402
@@ -193,7 +193,7 @@ def main():
     ap.add_argument("--out", default="experiments/results")
     args = ap.parse_args()
     root = DATA / ("kitti2015/training" if args.dataset == "kitti2015" else "middlebury")
-    frames = _parse_frames(args.frames) if args.dataset == "kitti2015" else args.frames.split(",")
+    frames = parse_frames(args.frames) if args.dataset == "kitti2015" else args.frames.split(",")
     model = load_model(args.weights or shipped_weights(args.dataset))
     base = preset("learned") if args.start == "preset" else learned_config(args.start)
     gt = "noc" if args.dataset == "kitti2015" else "occ"

@@ -18,9 +18,11 @@ from typing import Sequence
 
 import numpy as np
 
-from .data.datasets import KITTI_MAX_DISP
+from .data.datasets import KITTI_MAX_DISP, parse_frames
 from .data.io import json_default as _json_default, write_json
+from .data.pairs import find_pairs
 from .errors import ConfigError, OutputError, StereoError, StereoInputError
+from .outputs import color_scale, write_prediction
 
 DEFAULT_MAX_DISP = KITTI_MAX_DISP     # 228, the KITTI search range of the data layer
 
@@ -113,37 +115,6 @@ def _run_pipeline(left, right, cfg, model=None, phases: _Phases | None = None):
                   "device": str(device if device is not None else jax_devices()[0])}
 
 
-def _color_scale(disp, gt=None, gt_valid=None) -> float:
-    """Disparity shown as the top colour: the largest true disparity when GT is known, else
-    the 99.5th percentile of the estimate (so a few outliers do not wash out the picture)."""
-    if gt is not None and gt_valid is not None and gt_valid.any():
-        return float(gt[gt_valid].max())
-    return max(float(np.percentile(disp, 99.5)), 1.0)
-
-
-def _write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=False, color_max=None):
-    """Write disparity (KITTI png + colour png) and depth files; returns the written names."""
-    from .data import io
-    from . import depth as depth_mod
-
-    written = []
-    io.write_kitti_disparity(out / f"{stem}disparity.png", disp)
-    io.write_pfm(out / f"{stem}disparity.pfm", disp)
-    io.write_color_disparity(out / f"{stem}disparity_color.png", disp,
-                             max_disp=color_max or _color_scale(disp))
-    written += [f"{stem}disparity.png", f"{stem}disparity.pfm", f"{stem}disparity_color.png"]
-    if calib is not None:
-        z = depth_mod.disparity_to_depth(disp, calib.baseline, calib.focal, calib.doffs)
-        depth_mod.write_depth(out / f"{stem}depth.png", z)
-        depth_mod.write_depth(out / f"{stem}depth.npy", z)
-        written += [f"{stem}depth.png", f"{stem}depth.npy"]
-        if ply and image is not None:
-            xyz, rgb = depth_mod.point_cloud(disp, image, calib)
-            depth_mod.write_ply(out / f"{stem}points.ply", xyz, rgb)
-            written.append(f"{stem}points.ply")
-    return written
-
-
 # ---- commands ----------------------------------------------------------------------------------
 
 def _calibration(args):
@@ -158,80 +129,6 @@ def _calibration(args):
     return Calibration(baseline=args.baseline, focal=args.focal, doffs=args.doffs)
 
 
-_IMAGE_EXT = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
-# KITTI folder layouts, first match wins: (left view, right view, file pattern)
-_KITTI_VIEWS = (("image_2", "image_3"), ("image_0", "image_1"), ("colored_0", "colored_1"))
-
-
-def _images(folder: Path) -> dict[str, Path]:
-    return {p.name: p for p in sorted(folder.iterdir())
-            if p.is_file() and p.suffix.lower() in _IMAGE_EXT}
-
-
-def _folder_pairs(left_dir: Path, right_dir: Path) -> list[tuple[str, Path, Path]]:
-    """Pairs of two folders, matched by file name."""
-    left, right = _images(left_dir), _images(right_dir)
-    common = sorted(set(left) & set(right))
-    if not common:
-        raise StereoInputError(f"no image in {left_dir} has a file of the same name in {right_dir} "
-                               f"({len(left)} and {len(right)} images)")
-    return [(Path(n).stem, left[n], right[n]) for n in common]
-
-
-def _kitti_pairs(folder: Path) -> list[tuple[str, Path, Path]]:
-    """Pairs of a KITTI ``training/`` or ``testing/`` folder (image_2/3, image_0/1 or colored_0/1)."""
-    for lv, rv in _KITTI_VIEWS:
-        if (folder / lv).is_dir() and (folder / rv).is_dir():
-            return _folder_pairs(folder / lv, folder / rv)
-    raise StereoInputError(f"{folder} is not a KITTI training/ or testing/ folder: none of "
-                           + ", ".join(f"{a}/ + {b}/" for a, b in _KITTI_VIEWS) + " inside")
-
-
-def _list_pairs(path: Path) -> list[tuple[str, Path, Path]]:
-    """Pairs of a text file: one 'LEFT RIGHT' per line (relative to the file's folder; blank
-    lines and lines starting with # are skipped)."""
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise StereoInputError(f"cannot read the pair list {path}: {exc}") from None
-    pairs, seen = [], {}
-    for n, line in enumerate(lines, 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.split()
-        if len(parts) != 2:
-            raise StereoInputError(f"{path}, line {n}: expected 'LEFT RIGHT', got {line!r}")
-        left, right = (Path(p) if Path(p).is_absolute() else path.parent / p for p in parts)
-        name = left.stem
-        seen[name] = seen.get(name, 0) + 1
-        pairs.append((name if seen[name] == 1 else f"{name}_{seen[name]}", left, right))
-    if not pairs:
-        raise StereoInputError(f"the pair list {path} holds no pairs")
-    return pairs
-
-
-def _predict_inputs(args) -> tuple[list[tuple[str, Path, Path]], bool]:
-    """(pairs, batch?) from the positional inputs or --pairs."""
-    inputs = [Path(p) for p in args.inputs]
-    if args.pairs:
-        if inputs:
-            raise StereoInputError("give either --pairs FILE or input paths, not both")
-        return _list_pairs(Path(args.pairs)), True
-    if len(inputs) == 2 and inputs[0].is_dir() and inputs[1].is_dir():
-        return _folder_pairs(*inputs), True
-    if len(inputs) == 2:
-        return [("", inputs[0], inputs[1])], False
-    if len(inputs) == 1 and inputs[0].is_dir():
-        return _kitti_pairs(inputs[0]), True
-    if len(inputs) == 1 and inputs[0].is_file():
-        return _list_pairs(inputs[0]), True
-    if len(inputs) == 1:
-        raise StereoInputError(f"{inputs[0]} does not exist")
-    raise StereoInputError("predict takes LEFT RIGHT (two images or two folders), a KITTI "
-                           "training/ or testing/ folder, or --pairs FILE")
-
-
 def _predict_one(args, left_p, right_p, out: Path, stem_dir: str, calib, phases):
     from .data.datasets import load_pair
 
@@ -241,7 +138,7 @@ def _predict_one(args, left_p, right_p, out: Path, stem_dir: str, calib, phases)
     disp, timings = _run_pipeline(sample.left, sample.right, cfg, run.model(), phases)
     target = out / stem_dir if stem_dir else out
     target.mkdir(parents=True, exist_ok=True)
-    written = _write_prediction(target, "", disp, calib, sample.left, ply=args.ply)
+    written = write_prediction(target, "", disp, calib, sample.left, ply=args.ply)
     write_json(target / "config.json", cfg.to_dict())
     write_json(target / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                          "max_disp": cfg.max_disp, "method": cfg.cost.method,
@@ -254,7 +151,7 @@ def cmd_predict(args) -> int:
 
     from .devices import local_devices
 
-    pairs, batch = _predict_inputs(args)
+    pairs, batch = find_pairs(args.inputs, args.pairs)
     local_devices(args.devices)          # a bad --devices is refused for one pair too
     out = _check_out_dir(Path(args.out))
     calib = _calibration(args)
@@ -323,24 +220,6 @@ def _predict_batch(args, pairs, out: Path, calib) -> int:
     return 2 if failed else 0
 
 
-def _parse_frames(spec: str | None):
-    """'000021-000030' or '21-30' -> ids; comma lists allowed; None/'all' -> None (all frames)."""
-    if spec is None or spec in ("", "all"):
-        return None
-    frames = []
-    for part in spec.split(","):
-        part = part.strip()
-        if "-" in part:
-            a, b = part.split("-", 1)
-            if not (a.isdigit() and b.isdigit()) or int(b) < int(a):
-                raise StereoInputError(f"bad frame range {part!r}; expected e.g. 000021-000030")
-            width = max(len(a), 6)
-            frames += [f"{i:0{width}d}" for i in range(int(a), int(b) + 1)]
-        elif part:
-            frames.append(f"{int(part):06d}" if part.isdigit() else part)
-    return frames
-
-
 def cmd_evaluate(args) -> int:
     from tqdm import tqdm
 
@@ -353,7 +232,7 @@ def cmd_evaluate(args) -> int:
 
     out = _check_out_dir(Path(args.out))
     enable()
-    frames = _parse_frames(args.frames)
+    frames = parse_frames(args.frames)
     items = load_dataset(args.data, args.dataset, frames=frames, gt=args.gt)
     run = _resolve(args, 0, 0, args.dataset)
     print(f"method: {run.description}", file=sys.stderr)
@@ -383,8 +262,7 @@ def cmd_evaluate(args) -> int:
             row["pipeline"] = {**metrics.evaluate(disp, sample.gt, sample.gt_valid, fill=args.fill),
                                "seconds": timings["seconds"], "compile_s": timings["compile_s"],
                                "device": timings["device"]}
-            _write_prediction(out, f"{frame_id}_", disp,
-                              color_max=_color_scale(disp, sample.gt, sample.gt_valid))
+            write_prediction(out, f"{frame_id}_", disp, color_max=color_scale(disp, sample.gt, sample.gt_valid))
             io.write_error_map(out / f"{frame_id}_error.png", disp, sample.gt, sample.gt_valid)
             if args.sgbm:
                 for name, pad in (("sgbm", True), ("sgbm_unpadded", False)):
@@ -451,8 +329,8 @@ def cmd_demo(args) -> int:
     phases.done()
     disp, timings = _run_pipeline(sample.left, sample.right, cfg, model, phases)
     phases.start("writing disparity, depth, point cloud and error map")
-    written = _write_prediction(out, "", disp, sample.calib, sample.left, ply=True,
-                                color_max=_color_scale(disp, sample.gt, sample.gt_valid))
+    written = write_prediction(out, "", disp, sample.calib, sample.left, ply=True,
+                               color_max=color_scale(disp, sample.gt, sample.gt_valid))
     io.write_png(out / "left.png", sample.left)
     m = metrics.evaluate(disp, sample.gt, sample.gt_valid)
     io.write_error_map(out / "error.png", disp, sample.gt, sample.gt_valid)
@@ -506,7 +384,7 @@ def cmd_train(args) -> int:
     gt = "occ" if args.dataset == "middlebury" else "noc"
 
     def load(frames):
-        return [ld() for _, ld in load_dataset(args.data, args.dataset, _parse_frames(frames), gt=gt)]
+        return [ld() for _, ld in load_dataset(args.data, args.dataset, parse_frames(frames), gt=gt)]
 
     train_samples = load(args.frames)
     val_samples = load(args.val_frames) if args.val_frames else None

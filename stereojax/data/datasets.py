@@ -505,3 +505,21 @@ def load_dataset(root: PathLike, dataset: str, frames: list[str] | None = None,
         return lambda: load_middlebury(folder / frame, gt=gt)
 
     return [(f, loader(f)) for f in chosen]
+
+
+def parse_frames(spec: str | None):
+    """'000021-000030' or '21-30' -> ids; comma lists allowed; None/'all' -> None (all frames)."""
+    if spec is None or spec in ("", "all"):
+        return None
+    frames = []
+    for part in spec.split(","):
+        part = part.strip()
+        if "-" in part:
+            a, b = part.split("-", 1)
+            if not (a.isdigit() and b.isdigit()) or int(b) < int(a):
+                raise StereoInputError(f"bad frame range {part!r}; expected e.g. 000021-000030")
+            width = max(len(a), 6)
+            frames += [f"{i:0{width}d}" for i in range(int(a), int(b) + 1)]
+        elif part:
+            frames.append(f"{int(part):06d}" if part.isdigit() else part)
+    return frames

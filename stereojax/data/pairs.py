@@ -1,0 +1,83 @@
+"""Stereo pairs on disk: two folders matched by file name, a KITTI ``training/`` or ``testing/``
+folder, or a text list of pairs; what ``stereojax predict`` takes as its inputs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import StereoInputError
+
+IMAGE_EXT = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
+# KITTI folder layouts, first match wins: (left view, right view, file pattern)
+KITTI_VIEWS = (("image_2", "image_3"), ("image_0", "image_1"), ("colored_0", "colored_1"))
+
+
+def images(folder: Path) -> dict[str, Path]:
+    return {p.name: p for p in sorted(folder.iterdir())
+            if p.is_file() and p.suffix.lower() in IMAGE_EXT}
+
+
+def folder_pairs(left_dir: Path, right_dir: Path) -> list[tuple[str, Path, Path]]:
+    """Pairs of two folders, matched by file name."""
+    left, right = images(left_dir), images(right_dir)
+    common = sorted(set(left) & set(right))
+    if not common:
+        raise StereoInputError(f"no image in {left_dir} has a file of the same name in {right_dir} "
+                               f"({len(left)} and {len(right)} images)")
+    return [(Path(n).stem, left[n], right[n]) for n in common]
+
+
+def kitti_pairs(folder: Path) -> list[tuple[str, Path, Path]]:
+    """Pairs of a KITTI ``training/`` or ``testing/`` folder (image_2/3, image_0/1 or colored_0/1)."""
+    for lv, rv in KITTI_VIEWS:
+        if (folder / lv).is_dir() and (folder / rv).is_dir():
+            return folder_pairs(folder / lv, folder / rv)
+    raise StereoInputError(f"{folder} is not a KITTI training/ or testing/ folder: none of "
+                           + ", ".join(f"{a}/ + {b}/" for a, b in KITTI_VIEWS) + " inside")
+
+
+def list_pairs(path: Path) -> list[tuple[str, Path, Path]]:
+    """Pairs of a text file: one 'LEFT RIGHT' per line (relative to the file's folder; blank
+    lines and lines starting with # are skipped)."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StereoInputError(f"cannot read the pair list {path}: {exc}") from None
+    pairs, seen = [], {}
+    for n, line in enumerate(lines, 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) != 2:
+            raise StereoInputError(f"{path}, line {n}: expected 'LEFT RIGHT', got {line!r}")
+        left, right = (Path(p) if Path(p).is_absolute() else path.parent / p for p in parts)
+        name = left.stem
+        seen[name] = seen.get(name, 0) + 1
+        pairs.append((name if seen[name] == 1 else f"{name}_{seen[name]}", left, right))
+    if not pairs:
+        raise StereoInputError(f"the pair list {path} holds no pairs")
+    return pairs
+
+
+def find_pairs(inputs, pairs_file=None) -> tuple[list[tuple[str, Path, Path]], bool]:
+    """(pairs as (name, left, right), whether it is a batch) from what ``stereojax predict`` is
+    given: two images, two folders (matched by file name), a KITTI ``training/`` or ``testing/``
+    folder, or a pair list (``pairs_file``, or one text file among the inputs)."""
+    inputs = [Path(p) for p in inputs]
+    if pairs_file:
+        if inputs:
+            raise StereoInputError("give either --pairs FILE or input paths, not both")
+        return list_pairs(Path(pairs_file)), True
+    if len(inputs) == 2 and inputs[0].is_dir() and inputs[1].is_dir():
+        return folder_pairs(*inputs), True
+    if len(inputs) == 2:
+        return [("", inputs[0], inputs[1])], False
+    if len(inputs) == 1 and inputs[0].is_dir():
+        return kitti_pairs(inputs[0]), True
+    if len(inputs) == 1 and inputs[0].is_file():
+        return list_pairs(inputs[0]), True
+    if len(inputs) == 1:
+        raise StereoInputError(f"{inputs[0]} does not exist")
+    raise StereoInputError("predict takes LEFT RIGHT (two images or two folders), a KITTI "
+                           "training/ or testing/ folder, or --pairs FILE")
