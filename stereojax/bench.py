@@ -124,7 +124,7 @@ def learned_setup(name: str, max_disp: int):
     return load_model(path), learned_config(path, max_disp), shipped_name(path)
 
 
-def _chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
+def chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
     """Compile and run the chain of ``method`` (best, a shipped model or a classical preset) on the bench
     pair in this (fresh) process; warm time, compile time and peak RSS."""
     import jax
@@ -180,8 +180,8 @@ def _child(code: str, env=None) -> tuple[dict | None, float, str]:
 
 def chain_memory(max_disp: int, method: str) -> dict:
     """Warm time, compile time and peak RSS of the whole chain in a fresh child process."""
-    code = ("import json;from stereojax.bench import _chain_child;"
-            f"print(json.dumps(_chain_child({max_disp}, {method!r})))")
+    code = ("import json;from stereojax.bench import chain_child;"
+            f"print(json.dumps(chain_child({max_disp}, {method!r})))")
     res, _, err = _child(code, {**os.environ, "STEREOJAX_CACHE_DIR": "off"})
     return res if res is not None else {"error": err or "child failed"}
 

@@ -196,7 +196,7 @@ class StereoConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "StereoConfig":
-        return _from_dict(cls, data, "").validate()
+        return dataclass_from_dict(cls, data, "").validate()
 
     @classmethod
     def from_json(cls, text: str) -> "StereoConfig":
@@ -212,7 +212,7 @@ class StereoConfig:
         return replace(self, max_disp=_as_int(max_disp)).validate()
 
 
-def _from_dict(cls, data: Mapping[str, Any], prefix: str = ""):
+def dataclass_from_dict(cls, data: Mapping[str, Any], prefix: str = ""):
     """Build dataclass ``cls`` from a JSON mapping, recursing into dataclass-valued fields."""
     known = {f.name: f for f in fields(cls)}
     kwargs = {}
@@ -225,7 +225,7 @@ def _from_dict(cls, data: Mapping[str, Any], prefix: str = ""):
         if dataclasses.is_dataclass(default):
             if not isinstance(value, Mapping):
                 raise ConfigError(f"config key '{prefix}{key}' must be an object, got {value!r}")
-            kwargs[key] = _from_dict(type(default), value, f"{prefix}{key}.")
+            kwargs[key] = dataclass_from_dict(type(default), value, f"{prefix}{key}.")
         else:
             kwargs[key] = _coerce(value, default, f"{prefix}{key}")
     return cls(**kwargs)

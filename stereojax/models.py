@@ -105,12 +105,12 @@ def load_model(path, expect_net=None):
     import jax
 
     from . import checkpoint
-    from .config import _from_dict
+    from .config import dataclass_from_dict
     from .learned_cost import LearnedModel
     from .nets import NetConfig, init_params
 
     stored = checkpoint.read_config(path)
-    net = _from_dict(NetConfig, stored["net"]).validate()
+    net = dataclass_from_dict(NetConfig, stored["net"]).validate()
     if expect_net is not None and net != expect_net:
         raise CheckpointError(f"checkpoint {path} is for network {dataclasses.asdict(net)}, "
                               f"expected {dataclasses.asdict(expect_net)}")

@@ -23,7 +23,7 @@ from .errors import ConfigError, StereoInputError
 from .sgm import sgm
 
 
-def _as_grey(image: Any, name: str, float_scale: float | None = None) -> np.ndarray:
+def as_grey(image: Any, name: str, float_scale: float | None = None) -> np.ndarray:
     """Validate one image and return grey ``f32[H, W]`` in 0..255 (numpy).
 
     uint8 is taken as it is, uint16 is divided by 257, float images are taken as 0..1 when
@@ -102,7 +102,7 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=No
     config.validate()
     la, ra = np.asarray(left), np.asarray(right)
     scale = _pair_float_scale(la, ra)
-    gl, gr = _as_grey(la, "left", scale), _as_grey(ra, "right", scale)
+    gl, gr = as_grey(la, "left", scale), as_grey(ra, "right", scale)
     if gl.shape != gr.shape:
         raise StereoInputError(f"left is {gl.shape[0]}x{gl.shape[1]} but right is "
                                f"{gr.shape[0]}x{gr.shape[1]}; a rectified pair has equal sizes")

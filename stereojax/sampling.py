@@ -116,7 +116,7 @@ class PatchData(NamedTuple):
 
 def build_patch_data(samples: Sequence, patch_size: int, cfg: SamplerConfig) -> PatchData:
     """Collect the GT pixels of ``samples`` (StereoSample with gt) usable with ``cfg``'s offsets."""
-    from .pipeline import _as_grey
+    from .pipeline import as_grey
 
     if not samples:
         raise StereoInputError("no training images given")
@@ -129,7 +129,7 @@ def build_patch_data(samples: Sequence, patch_size: int, cfg: SamplerConfig) -> 
         if s.gt is None or s.gt_valid is None:
             raise StereoInputError(f"training image {s.name} has no ground truth")
         h, w = s.left.shape[:2]
-        gl, gr = normalise(_as_grey(s.left, "left")), normalise(_as_grey(s.right, "right"))
+        gl, gr = normalise(as_grey(s.left, "left")), normalise(as_grey(s.right, "right"))
         lefts.append(np.pad(gl, ((0, hmax - h), (0, wmax - w))))
         rights.append(np.pad(gr, ((0, hmax - h), (0, wmax - w))))
         ys, xs = np.nonzero(s.gt_valid)

@@ -26,7 +26,7 @@ import numpy as np
 import optax
 
 from . import checkpoint, losses
-from .config import _from_dict
+from .config import dataclass_from_dict
 from .errors import ConfigError, TrainingError
 from .nets import MatchNet, NetConfig, init_params, similarity
 from .sampling import PatchData, SamplerConfig, build_patch_data, sample_batch, sample_distill_batch
@@ -95,7 +95,7 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data) -> "TrainConfig":
-        return _from_dict(cls, data).validate()
+        return dataclass_from_dict(cls, data).validate()
 
     @classmethod
     def from_stored(cls, stored: dict) -> "TrainConfig":
@@ -433,13 +433,13 @@ def _preview(cfg: TrainConfig, state, sample, rows: int = 64, cols: int = 320, m
     bottom centre of a validation frame (road and cars), for TensorBoard."""
     from .data.io import colorize_disparity
     from .learned_cost import learned_cost
-    from .pipeline import _as_grey
+    from .pipeline import as_grey
 
     h, w = sample.left.shape[:2]
     y0, x0 = max(h - rows, 0), max((w - cols) // 2, 0)
     crop = (slice(y0, y0 + rows), slice(x0, x0 + cols))
-    gl = jnp.asarray(_as_grey(sample.left, "left")[crop])
-    gr = jnp.asarray(_as_grey(sample.right, "right")[crop])
+    gl = jnp.asarray(as_grey(sample.left, "left")[crop])
+    gr = jnp.asarray(as_grey(sample.right, "right")[crop])
     variables = {"params": state["params"], "batch_stats": state["batch_stats"]}
     md = min(max_disp, gl.shape[1] - 1)
     vol = learned_cost(cfg.net, variables, gl, gr, md, 16)
