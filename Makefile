@@ -54,7 +54,7 @@ evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015|kitti2012|middlebu
 	  $(if $(filter middlebury,$(DATASET)),--gt occ) --out experiments/results/evaluate_$(DATASET)_$(METHOD)
 
 bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS -> experiments/results/bench.{json,md}
-	$(CLI) bench --out experiments/results
+	$(CLI) bench --data $(DATA) --out experiments/results
 
 ANCHORS_VENV ?= .venv-anchors
 bench-anchors: $(STAMP)  ## optional: CNES Pandora (MC-CNN + libsgm) in its own venv, timed on the bench frame beside best and SGBM (~5 min with the install) -> experiments/results/anchors.*

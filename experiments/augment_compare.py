@@ -17,7 +17,6 @@ import json
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import (DEFAULT_DATA, QUICK_CROP, RESULTS, ROOT, _crop, _load, md_table, mean_std,  # noqa: E402
                     pm)

@@ -7,13 +7,11 @@ the > 3 px error of both methods on each frame.
 """
 
 import argparse
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import stereojax  # noqa: E402
 from stereojax.baselines import sgbm_disparity  # noqa: E402

@@ -12,7 +12,6 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import jax  # noqa: E402
 from jax.sharding import NamedSharding, PartitionSpec  # noqa: E402
@@ -21,15 +20,12 @@ from stereojax.sampling import build_patch_data  # noqa: E402
 from stereojax.train import init_state, make_mesh, train_preset, train_step  # noqa: E402
 
 
-def main(steps: int = 30, augment: bool = False):
-    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
-    if root.is_dir():
-        from stereojax.data import load_kitti2015
-        samples = [load_kitti2015(root, "000001")]
-    else:
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-        from tests.helpers import training_samples as _samples
-        samples = _samples()
+def main(steps: int = 30, augment: bool = False, data: str = "../shared/data"):
+    root = Path(data) / "kitti2015" / "training"
+    if not root.is_dir():
+        sys.exit(f"KITTI 2015 not found under {data} (give the shared data root with --data)")
+    from stereojax.data import load_kitti2015
+    samples = [load_kitti2015(root, "000001")]
     cfg = train_preset("cpu")
     if augment:
         from stereojax.train import with_augmentation
@@ -56,4 +52,10 @@ def main(steps: int = 30, augment: bool = False):
 
 
 if __name__ == "__main__":
-    main(augment="--augment" in sys.argv[1:])
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--augment", action="store_true")
+    ap.add_argument("--data", default="../shared/data", help="shared data root (default ../shared/data)")
+    args = ap.parse_args()
+    main(augment=args.augment, data=args.data)

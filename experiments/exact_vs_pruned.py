@@ -5,9 +5,8 @@ a choice: nothing is picked from it).
 Command:  .venv/bin/python experiments/exact_vs_pruned.py   (about 4 min here: the exact head is
 ~100 s per crop) -> experiments/results/exact_vs_pruned.json
 """
-import dataclasses, json, sys, time
+import dataclasses, json, time
 from pathlib import Path
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import _crop, _load
 import stereojax
 from stereojax.metrics import evaluate

@@ -11,12 +11,10 @@ seconds per frame, and writes them to --out.
 
 import argparse
 import dataclasses
-import sys
 import time
 from pathlib import Path
 
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import stereojax  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import DEFAULT_DATA, ROOT, _load, md_table  # noqa: E402
 from search_chain import SPACE_SMALL as SPACE, cache_volumes, changes, coordinate_search  # noqa: E402

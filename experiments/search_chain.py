@@ -22,13 +22,11 @@ Writes OUT/chain_search_<dataset>.md (every setting tried, in order) and .json.
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import functools  # noqa: E402
 

@@ -13,7 +13,6 @@ import json
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stereojax import checkpoint  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402

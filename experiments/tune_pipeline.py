@@ -10,14 +10,12 @@ experiments/results/tuning.md.
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stereojax import pipeline  # noqa: E402
 from stereojax.config import StereoConfig  # noqa: E402

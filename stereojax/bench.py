@@ -22,13 +22,22 @@ import numpy as np
 KITTI_SHAPE = (375, 1242)
 
 
-def _bench_pair(shape=KITTI_SHAPE):
+#: where ``make bench`` looks for the shared data when not told (relative to the working folder,
+#: the project root for the Makefile)
+DEFAULT_DATA = "../shared/data"
+
+
+def _kitti_bench_paths(data=None) -> tuple[Path, Path]:
+    root = Path(data or DEFAULT_DATA) / "kitti2015" / "training"
+    return root / "image_2" / "000021_10.png", root / "image_3" / "000021_10.png"
+
+
+def _bench_pair(shape=KITTI_SHAPE, data=None):
     """A real KITTI-sized pair: the built-in Motorcycle sample resized to 1242x375 would not have
     KITTI's statistics, so use a KITTI frame when ../shared/data is present, else the sample."""
     import cv2
 
-    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
-    left_p, right_p = root / "image_2" / "000021_10.png", root / "image_3" / "000021_10.png"
+    left_p, right_p = _kitti_bench_paths(data)
     if left_p.exists() and right_p.exists():
         left, right = cv2.imread(str(left_p)), cv2.imread(str(right_p))
         src = "KITTI 2015 000021"
@@ -124,7 +133,7 @@ def learned_setup(name: str, max_disp: int):
     return load_model(path), learned_config(path, max_disp), shipped_name(path)
 
 
-def chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
+def chain_child(max_disp: int, method: str, repeats: int = 3, data=None) -> dict:
     """Compile and run the chain of ``method`` (best, a shipped model or a classical preset) on the bench
     pair in this (fresh) process; warm time, compile time and peak RSS."""
     import jax
@@ -135,7 +144,7 @@ def chain_child(max_disp: int, method: str, repeats: int = 3) -> dict:
         model, cfg, _ = learned_setup(method, max_disp)
     else:
         model, cfg = None, preset(method, max_disp)
-    left, right, src = _bench_pair()
+    left, right, src = _bench_pair(data=data)
     t = warm_chain(left, right, cfg, model, repeats)
     return {"warm_s": t["warm_s"], "compile_s": t["compile_s"],
             "peak_rss_gib": peak_rss_gib(), "backend": jax.default_backend(), "source": src}
@@ -178,10 +187,10 @@ def _child(code: str, env=None) -> tuple[dict | None, float, str]:
     return result, wall, last_err
 
 
-def chain_memory(max_disp: int, method: str) -> dict:
+def chain_memory(max_disp: int, method: str, data=None) -> dict:
     """Warm time, compile time and peak RSS of the whole chain in a fresh child process."""
     code = ("import json;from stereojax.bench import chain_child;"
-            f"print(json.dumps(chain_child({max_disp}, {method!r})))")
+            f"print(json.dumps(chain_child({max_disp}, {method!r}, data={data!r})))")
     res, _, err = _child(code, {**os.environ, "STEREOJAX_CACHE_DIR": "off"})
     return res if res is not None else {"error": err or "child failed"}
 
@@ -276,10 +285,9 @@ def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: i
             "head_tflop": (network_flops(net, h, w, evals) - network_flops(net, h, w, 0)) / 1e12}
 
 
-def _kitti_files(left, right, work: Path) -> tuple[Path, Path]:
+def _kitti_files(left, right, work: Path, data=None) -> tuple[Path, Path]:
     """The bench pair as files (the KITTI originals when present)."""
-    root = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
-    lp, rp = root / "image_2" / "000021_10.png", root / "image_3" / "000021_10.png"
+    lp, rp = _kitti_bench_paths(data)
     if lp.exists() and rp.exists():
         return lp, rp
     import cv2
@@ -290,7 +298,7 @@ def _kitti_files(left, right, work: Path) -> tuple[Path, Path]:
     return lp, rp
 
 
-def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228) -> dict:
+def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -> dict:
     """Everything ``make bench`` reports, in one run on KITTI 2015 000021 (see README)."""
     import tempfile
 
@@ -301,7 +309,7 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228) -> dict:
     from .data.io import atomic_output, write_json
 
     cfg = preset("census", max_disp)
-    left, right, src = _bench_pair()
+    left, right, src = _bench_pair(data=data)
     print(f"bench: {src}, {left.shape[1]}x{left.shape[0]}, {max_disp} disparities, "
           f"{os.cpu_count()} CPU cores, jax {jax.__version__} on {jax.default_backend()}", flush=True)
     sgbm = [sgbm_timings(left, right, max_disp, repeats)]
@@ -315,12 +323,12 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228) -> dict:
         for name, t in prof["stages"].items():
             print(f"  {which} {name:45s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
         print(f"  {which}: exact head (extrapolated): {prof['exact']}", flush=True)
-    chains = {m: chain_memory(max_disp, m) for m in (*LEARNED, "census")}
+    chains = {m: chain_memory(max_disp, m, data) for m in (*LEARNED, "census")}
     best = learned_setup("best", max_disp)[2]
     print(f"  whole chains, warm, fresh processes: {chains}", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        lp, rp = _kitti_files(left, right, work)
+        lp, rp = _kitti_files(left, right, work, data)
         procs = {m: process_timings(max_disp, m, lp, rp, work) for m in ("best", "census")}
     print(f"  stereojax predict processes (cold, cache hit): {procs}", flush=True)
     sgbm.append(sgbm_timings(left, right, max_disp, repeats))

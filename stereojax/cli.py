@@ -412,7 +412,7 @@ def cmd_train(args) -> int:
 def cmd_bench(args) -> int:
     from .bench import run_bench
 
-    run_bench(Path(args.out), repeats=args.repeats, max_disp=args.max_disp)
+    run_bench(Path(args.out), repeats=args.repeats, max_disp=args.max_disp, data=args.data)
     return 0
 
 
@@ -523,6 +523,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("bench", help="time every stage on a KITTI-sized frame (and OpenCV SGBM)")
     sp.add_argument("--out", default="experiments/results")
     sp.add_argument("--repeats", type=int, default=3)
+    sp.add_argument("--data", default="../shared/data", help="shared data root with KITTI 2015 000021 (default "
+                    "../shared/data; without it the built-in sample, resized)")
     sp.add_argument("--max-disp", type=int, default=DEFAULT_MAX_DISP)
     sp.set_defaults(func=cmd_bench)
     return p

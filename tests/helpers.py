@@ -1,4 +1,4 @@
-"""Synthetic inputs shared by the test modules (and by experiments/devices_throughput.py):
+"""Synthetic inputs shared by the test modules:
 textured images, pairs shifted by a known disparity, training samples, a tiny KITTI tree."""
 
 from __future__ import annotations
