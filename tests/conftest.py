@@ -14,3 +14,11 @@ def data_root() -> Path:
     if not DATA_ROOT.is_dir():
         pytest.skip(f"real stereo data not found at {DATA_ROOT} (expected ../shared/data next to the project)")
     return DATA_ROOT
+
+
+@pytest.fixture
+def pair(tmp_path):
+    """A small shifted pair written as left.png and right.png (the robustness tests' input)."""
+    from .robustness_helpers import _write_pair
+
+    return _write_pair(tmp_path / "in")
