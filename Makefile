@@ -117,7 +117,7 @@ figures: $(STAMP)  ## Figures 5-8: images, disparity, error and depth maps of KI
 depth-example: $(STAMP)  ## metric depth and a point cloud from a KITTI pair with KITTI calibration
 	$(EXP)/depth_example.py
 
-report: $(STAMP)  ## collect the tables and figures into experiments/results/REPORT.md
+report: $(STAMP)  ## collect the tables and figures into experiments/results/REPORT.md and fill the generated tables of README.md and docs/results.md
 	$(EXP)/report.py
 
 experiments: table1 sweep-delta table3 table4 figures depth-example report  ## all of the above

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 
-from common import (DEFAULT_DATA, QUICK_CROP, RESULTS, ROOT, _crop, _load, md_table, mean_std,  # noqa: E402
+from common import (DEFAULT_DATA, QUICK_CROP, RESULTS, ROOT, load_sample, md_table, mean_std,  # noqa: E402
                     pm)
 
 import stereojax  # noqa: E402
@@ -43,8 +43,8 @@ def main():
     train_ids, select_ids = (TRAIN[:2], SELECT[:1]) if args.quick else (TRAIN, SELECT)
 
     def samples(ids):
-        out = [_load(args.data, "kitti2015", f, "noc") for f in ids]
-        return [_crop(s, *QUICK_CROP) for s in out] if args.quick else out
+        out = [load_sample(args.data, "kitti2015", f, "noc") for f in ids]
+        return [s.crop(*QUICK_CROP) for s in out] if args.quick else out
 
     train, select = samples(train_ids), samples(select_ids)
     rows, table = {}, []

@@ -28,8 +28,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stereojax.data.datasets import DEFAULT_DATA
+
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = ROOT.parent / "shared" / "data"
 
 PANDORA_CHILD = r'''
 import json, sys, time

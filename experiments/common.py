@@ -24,7 +24,6 @@ import dataclasses
 import json
 import statistics
 import sys
-import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -34,15 +33,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 import stereojax  # noqa: E402
 from stereojax.baselines import sgbm_disparity  # noqa: E402
-from stereojax.data.datasets import load_dataset, search_range  # noqa: E402
+from stereojax.data.datasets import DEFAULT_DATA, load_dataset, search_range  # noqa: E402
 from stereojax.data.io import atomic_output, write_json  # noqa: E402
-from stereojax.metrics import evaluate, mean_metrics  # noqa: E402
+from stereojax.evaluation import evaluate_frames  # noqa: E402
+from stereojax.metrics import mean_metrics  # noqa: E402
 from stereojax.models import load_model  # noqa: E402
 from stereojax.train import fit, train_preset  # noqa: E402
 
 RESULTS = ROOT / "experiments" / "results"
 RUNS = ROOT / "runs" / "experiments"
-DEFAULT_DATA = ROOT.parent / "shared" / "data"
 
 MIDDLEBURY_TRAIN = ["Aloe_opencv", "Cones_2003Q", "Reindeer_2006H", "Teddy_2003Q", "Tsukuba_2001", "Venus_2001"]
 #: Middlebury test scenes of the experiments: the four small 2001/2003 scenes (0.6 Mpixel in
@@ -122,9 +121,9 @@ class Setup:
     def samples(self, role: str, dataset: str) -> list:
         # KITTI 2015: non-occluded GT; Middlebury and KITTI 2012 (only disp_occ is shared): all pixels
         gt = "noc" if dataset == "kitti2015" else "occ"
-        out = [_load(str(self.data), dataset, f, gt) for f in self.frames(role, dataset)]
+        out = [load_sample(str(self.data), dataset, f, gt) for f in self.frames(role, dataset)]
         if self.quick and role == "test" and dataset.startswith("kitti"):
-            out = [_crop(s, *QUICK_CROP) for s in out]
+            out = [s.crop(*QUICK_CROP) for s in out]
         return out
 
     def max_disp(self, dataset: str, sample) -> int:
@@ -182,22 +181,13 @@ class Setup:
 
     def score(self, dataset: str, predict) -> dict:
         """Run ``predict(sample, max_disp) -> (disparity[, est_valid])`` on the test frames of
-        ``dataset``; returns per-frame and mean KITTI measures and the warm seconds per frame
-        (frames of a size seen before in this process; the first of each size compiles)."""
-        rows, seen = [], set()
-        for s in self.samples("test", dataset):
-            md = self.max_disp(dataset, s)
-            t0 = time.perf_counter()
-            out = predict(s, md)
-            secs = time.perf_counter() - t0
-            disp, est_valid = out if isinstance(out, tuple) else (out, None)
-            key = (s.left.shape, md)
-            m = evaluate(disp, s.gt, s.gt_valid, est_valid=est_valid)
-            rows.append({"frame": s.name, "max_disp": md, **m, "seconds": secs, "warm": key in seen})
-            seen.add(key)
-        warm = [r["seconds"] for r in rows if r["warm"]]
-        return {"mean": mean_metrics(rows), "frames": rows,
-                "seconds_warm": float(np.mean(warm)) if warm else float("nan"),
+        ``dataset`` (:func:`stereojax.evaluation.evaluate_frames`); returns per-frame and mean
+        KITTI measures and the warm seconds per frame (frames of a size seen before in this
+        process; the first of each size compiles)."""
+        result = evaluate_frames(self.samples("test", dataset), {"m": predict},
+                                 lambda s: self.max_disp(dataset, s))
+        rows = [{"frame": r["frame"], "max_disp": r["max_disp"], **r["m"]} for r in result["frames"]]
+        return {"mean": mean_metrics(rows), "frames": rows, "seconds_warm": result["mean"]["m"]["seconds_warm"],
                 "seconds_first": rows[0]["seconds"]}
 
 
@@ -210,7 +200,7 @@ def sgbm_predict(s, md):
 
 
 @lru_cache(maxsize=64)
-def _load(data: str, dataset: str, frame: str, gt: str):
+def load_sample(data: str, dataset: str, frame: str, gt: str):
     items = load_dataset(data, dataset, frames=[frame], gt=gt)
     return items[0][1]()
 
@@ -223,19 +213,6 @@ def shrink(rgb: np.ndarray, scale: float) -> np.ndarray:
         return rgb
     h, w = rgb.shape[:2]
     return cv2.resize(rgb, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
-
-
-def _crop(s, rows: int, cols: int):
-    """Bottom-centre crop of a sample (images and GT alike)."""
-    h, w = s.left.shape[:2]
-    y0, x0 = max(h - rows, 0), max((w - cols) // 2, 0)
-    sl = (slice(y0, y0 + rows), slice(x0, x0 + cols))
-
-    def cut(a):
-        return None if a is None else np.ascontiguousarray(a[sl])
-
-    return dataclasses.replace(s, left=cut(s.left), right=cut(s.right), gt=cut(s.gt),
-                               gt_valid=cut(s.gt_valid), gt_noc_valid=cut(s.gt_noc_valid), calib=None)
 
 
 # ---- numbers and tables ------------------------------------------------------------------------

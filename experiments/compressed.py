@@ -19,17 +19,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 
-from common import QUICK_CROP, Setup, _crop, _load, add_common_args, md_table, write_outputs
+from common import QUICK_CROP, Setup, load_sample, add_common_args, md_table, write_outputs
 
-import stereojax
-from stereojax.baselines import sgbm_disparity
 from stereojax.bench import warm_chain
-from stereojax.metrics import evaluate, mean_metrics
+from stereojax.evaluation import chain_method, evaluate_frames, sgbm_method
+from stereojax.metrics import mean_metrics
 from stereojax.models import learned_config, load_model, shipped_weights
 from stereojax.nets import NetConfig, network_flops
 from stereojax.train import fit, train_preset
@@ -68,7 +66,7 @@ def train_student(setup: Setup, frames, name, features, widths, distill, teacher
     if done.is_file() and json.loads(done.read_text()).get("steps") == cfg.steps:
         return run
     print(f"  training {name} ({cfg.steps} steps{', distilled' if distill else ''})", flush=True)
-    load = lambda role: [_load(str(setup.data), "kitti2015", f, "noc") for f in frames[role]]  # noqa: E731
+    load = lambda role: [load_sample(str(setup.data), "kitti2015", f, "noc") for f in frames[role]]  # noqa: E731
     info = {"data": {"dataset": "kitti2015", "frames": frames["train"], "val_frames": frames["select"]}}
     if distill:
         info["distill_from"] = "kitti2015"
@@ -88,12 +86,10 @@ def chain_for(model_name_or_none, max_disp: int):
                                                              unsure_candidates=0)).validate()
 
 
-def score(samples, predict) -> dict:
-    rows = []
-    for s in samples:
-        out = predict(s)
-        disp, est_valid = out if isinstance(out, tuple) else (out, None)
-        rows.append({"frame": s.name, **evaluate(disp, s.gt, s.gt_valid, est_valid=est_valid)})
+def score(samples, predict, max_disp: int) -> dict:
+    """``predict(sample, max_disp)`` scored on the samples (:func:`stereojax.evaluation.evaluate_frames`)."""
+    result = evaluate_frames(samples, {"m": predict}, max_disp)
+    rows = [{"frame": r["frame"], **r["m"]} for r in result["frames"]]
     return {"mean": mean_metrics(rows), "frames": rows}
 
 
@@ -118,8 +114,8 @@ def main():
     teacher = load_model(shipped_weights("kitti2015"))
 
     def samples(role):
-        out = [_load(str(setup.data), "kitti2015", f, "noc") for f in frames[role]]
-        return [_crop(s, *QUICK_CROP) for s in out] if setup.quick else out
+        out = [load_sample(str(setup.data), "kitti2015", f, "noc") for f in frames[role]]
+        return [s.crop(*QUICK_CROP) for s in out] if setup.quick else out
 
     sel, val = samples("select"), samples("val")
     md = QUICK_DISP if setup.quick else 228
@@ -133,11 +129,10 @@ def main():
         model = load_model(run / "checkpoint.msgpack")
         cfg = chain_for(name, md)
 
-        def predict(s, model=model, cfg=cfg):
-            return stereojax.disparity(s.left, s.right, cfg, params=model)
+        predict = chain_method(cfg, model)
 
         secs = warm_chain(bench.left, bench.right, cfg, model, repeats=2)["warm_s"]
-        r_sel, r_val = score(sel, predict), score(val, predict)
+        r_sel, r_val = score(sel, predict, md), score(val, predict, md)
         summary = json.loads((run / "train_summary.json").read_text())
         row = {"name": name, "features": model.net.features, "widths": list(model.net.widths),
                "distilled": distill, "run": str(run), "evals_per_pixel": cfg.cost.candidates,
@@ -154,19 +149,15 @@ def main():
         c = cfg.cost
         evals = c.candidates + c.unsure_share * (c.unsure_candidates - c.candidates)
         secs = warm_chain(bench.left, bench.right, cfg, teacher, repeats=1)["warm_s"]
-        r_val = score(val, lambda s: stereojax.disparity(s.left, s.right, cfg, params=teacher))
+        r_val = score(val, chain_method(cfg, teacher), md)
         full = {"name": "full (shipped kitti2015)", "features": teacher.net.features,
                 "widths": list(teacher.net.widths), "evals_per_pixel": evals,
                 "gflop": network_flops(teacher.net, h, w, evals) / 1e9, "seconds": secs,
                 "val": r_val["mean"]["bad3"], "val_d1": r_val["mean"]["d1"], "val_frames": r_val["frames"]}
         print(f"  full model: {full['gflop']:.0f} GFLOP, {secs:.2f} s, val {full['val']:.2f} %", flush=True)
-    t_sgbm, r_sgbm = [], []
-    for s in val:
-        t0 = time.perf_counter()
-        d, v = sgbm_disparity(s.left, s.right, num_disp=md, pad=True)
-        t_sgbm.append(time.perf_counter() - t0)
-        r_sgbm.append({"frame": s.name, **evaluate(d, s.gt, s.gt_valid, est_valid=v)})
-    sgbm = {"val": mean_metrics(r_sgbm)["bad3"], "seconds": float(np.median(t_sgbm))}
+    r_sgbm = evaluate_frames(val, {"sgbm": sgbm_method(pad=True)}, md)
+    sgbm = {"val": r_sgbm["mean"]["sgbm"]["bad3"],
+            "seconds": float(np.median([r["sgbm"]["seconds"] for r in r_sgbm["frames"]]))}
     chosen = choose(rows)
     becomes_best = bool(chosen and chosen["val"] <= BEST_LIMIT)
     data = {"rows": rows, "full": full, "sgbm": sgbm, "chosen": chosen["name"] if chosen else None,

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import QUICK_CROP, ROOT, Setup, _crop, add_common_args, md_table, shrink, write_outputs
+from common import QUICK_CROP, ROOT, Setup, add_common_args, md_table, shrink, write_outputs
 
 import stereojax
 from stereojax.data import load_kitti2015
@@ -52,7 +52,7 @@ def main():
     s = load_kitti2015(tree, args.frame)
     calib = s.calib
     if setup.quick:
-        s = _crop(s, *QUICK_CROP)
+        s = s.crop(*QUICK_CROP)
         disp = stereojax.disparity(s.left, s.right, stereojax.preset("census", 48))
         method = "census chain (quick mode, bottom-centre crop)"
     else:

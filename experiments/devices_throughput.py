@@ -16,11 +16,12 @@ from pathlib import Path
 import jax  # noqa: E402
 from jax.sharding import NamedSharding, PartitionSpec  # noqa: E402
 
+from stereojax.data.datasets import DEFAULT_DATA
 from stereojax.sampling import build_patch_data  # noqa: E402
 from stereojax.train import init_state, make_mesh, train_preset, train_step  # noqa: E402
 
 
-def main(steps: int = 30, augment: bool = False, data: str = "../shared/data"):
+def main(steps: int = 30, augment: bool = False, data: str = DEFAULT_DATA):
     root = Path(data) / "kitti2015" / "training"
     if not root.is_dir():
         sys.exit(f"KITTI 2015 not found under {data} (give the shared data root with --data)")
@@ -56,6 +57,6 @@ if __name__ == "__main__":
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--augment", action="store_true")
-    ap.add_argument("--data", default="../shared/data", help="shared data root (default ../shared/data)")
+    ap.add_argument("--data", default=DEFAULT_DATA, help=f"shared data root (default {DEFAULT_DATA})")
     args = ap.parse_args()
     main(augment=args.augment, data=args.data)

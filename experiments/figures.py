@@ -17,7 +17,7 @@ import argparse
 
 import numpy as np
 
-from common import QUICK_CROP, Setup, _crop, _load, add_common_args, md_table, shrink, write_outputs
+from common import QUICK_CROP, Setup, load_sample, add_common_args, md_table, shrink, write_outputs
 
 import stereojax
 from stereojax.data.io import colorize_disparity, error_map, write_png
@@ -48,9 +48,9 @@ def main():
     figs.mkdir(parents=True, exist_ok=True)
     rows, data = [], []
     for frame in frames:
-        s = _load(str(setup.data), "kitti2015", frame, "noc")
+        s = load_sample(str(setup.data), "kitti2015", frame, "noc")
         if setup.quick:
-            s = _crop(s, *QUICK_CROP)
+            s = s.crop(*QUICK_CROP)
         md = setup.max_disp("kitti2015", s)
         disp = stereojax.disparity(s.left, s.right, stereojax.preset("learned", md), params=model)
         m = evaluate(disp, s.gt, s.gt_valid)

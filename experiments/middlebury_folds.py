@@ -22,14 +22,13 @@ from pathlib import Path
 import numpy as np
 
 
-from common import DEFAULT_DATA, ROOT, _load, md_table  # noqa: E402
+from common import DEFAULT_DATA, ROOT, load_sample, md_table  # noqa: E402
 from search_chain import SPACE_SMALL as SPACE, cache_volumes, changes, coordinate_search  # noqa: E402
 
 import stereojax  # noqa: E402
-from stereojax.baselines import sgbm_disparity  # noqa: E402
 from stereojax.data.datasets import search_range  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
-from stereojax.metrics import evaluate  # noqa: E402
+from stereojax.evaluation import chain_method, evaluate_frames, sgbm_method  # noqa: E402
 from stereojax.models import load_model, weights_path  # noqa: E402
 from stereojax.train import fit, train_preset  # noqa: E402
 
@@ -58,7 +57,7 @@ def main():
     args = ap.parse_args()
     folds = [["Tsukuba_2001"], ["Venus_2001"]] if args.quick else FOLDS
     space = SPACE[:1] if args.quick else SPACE
-    load = lambda name: _load(args.data, "middlebury", name, "occ")  # noqa: E731
+    load = lambda name: load_sample(args.data, "middlebury", name, "occ")  # noqa: E731
     base = stereojax.preset("learned")
     kitti = load_model(weights_path(args.init))
     init_tag = "" if args.init == "kitti2015" else "_" + Path(args.init).resolve().parent.name
@@ -87,21 +86,13 @@ def main():
                           "train_seconds": train_s, "config": best.to_dict(), "trials": log})
         print(f"fold {i}: settings {changes(base, best) or 'preset'} ({start_err:.2f} -> {best_err:.2f} "
               "mean of > 2 / > 3 px on its training scenes)", flush=True)
-        for name in held:
-            s = load(name)
-            md = search_range("middlebury", s, None)
-            row = {"scene": name, "fold": i, "max_disp": md}
-            t = time.perf_counter()
-            disp = stereojax.disparity(s.left, s.right, best.with_max_disp(md), params=model)
-            row["learned"] = {**evaluate(disp, s.gt, s.gt_valid), "seconds": time.perf_counter() - t}
-            disp = stereojax.disparity(s.left, s.right, base.with_max_disp(md), params=model)
-            row["learned_preset"] = evaluate(disp, s.gt, s.gt_valid)
-            row["census"] = evaluate(stereojax.disparity(s.left, s.right, stereojax.preset("census", md)),
-                                     s.gt, s.gt_valid)
-            d_cv, v_cv = sgbm_disparity(s.left, s.right, num_disp=md, pad=True)
-            row["sgbm"] = evaluate(d_cv, s.gt, s.gt_valid, est_valid=v_cv)
+        methods = {"learned": chain_method(best, model), "learned_preset": chain_method(base, model),
+                   "census": chain_method(stereojax.preset("census")), "sgbm": sgbm_method(pad=True)}
+        result = evaluate_frames([load(name) for name in held], methods, lambda s: search_range("middlebury", s, None))
+        for r in result["frames"]:
+            row = {"scene": r["frame"], "fold": i, "max_disp": r["max_disp"], **{m: r[m] for m in methods}}
             rows.append(row)
-            print(f"  {name}: learned {row['learned']['bad2']:.2f} / {row['learned']['bad3']:.2f}, "
+            print(f"  {row['scene']}: learned {row['learned']['bad2']:.2f} / {row['learned']['bad3']:.2f}, "
                   f"SGBM {row['sgbm']['bad2']:.2f} / {row['sgbm']['bad3']:.2f} (> 2 / > 3 px %)", flush=True)
 
     methods = [("learned", "fine-tuned model + fold's searched settings"),

@@ -1,15 +1,22 @@
-"""Collect the experiment tables and figures into experiments/results/REPORT.md.
+"""Collect the experiment tables and figures into experiments/results/REPORT.md, and fill the
+generated tables of README.md and docs/results.md from the result files.
 
 Command:  make report   (= .venv/bin/python experiments/report.py [--quick])
-Running time: a second (it only reads the markdown the experiment scripts wrote).
-Prints the path of the report; a table whose script has not been run yet is listed as missing,
-with the command that makes it.
+Running time: a second (it only reads what the experiment scripts and `stereojax evaluate` /
+`make bench` wrote). Prints the paths it wrote; a table whose script has not been run yet is
+listed as missing, with the command that makes it.
+
+A generated table sits between ``<!-- NAME -->`` and ``<!-- /NAME -->`` in a markdown file;
+everything between the two markers is replaced, nothing else is touched.
 """
 
 import argparse
+import json
+import re
 from pathlib import Path
 
-RESULTS = Path(__file__).resolve().parent / "results"
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "experiments" / "results"
 SECTIONS = [
     ("table1", "make table1"),
     ("table2", "make sweep-delta"),
@@ -17,6 +24,16 @@ SECTIONS = [
     ("table4", "make table4"),
     ("figures", "make figures"),
     ("depth_example", "make depth-example"),
+]
+#: the paper's tables that docs/results.md shows, each from experiments/results/<name>.md
+DOC_TABLES = ["table1", "table2", "table3", "table4"]
+#: the README's results table: (evaluate folder, label, bench chain); numbers from the files
+README_ROWS = [
+    ("evaluate_kitti2015_best", "**`best` = `kitti2015`** (paper's network, 8 head evaluations per pixel)",
+     "kitti2015"),
+    ("evaluate_kitti2015_compact", "`kitti2015_compact` (16 maps, head 64-32, 16 evaluations per pixel)",
+     "kitti2015_compact"),
+    ("evaluate_kitti2015_census", "census + CBCA + SGM + refinement (`--method census`)", "census"),
 ]
 INTRO = """# stereojax — reproduction report
 
@@ -32,10 +49,89 @@ tests are reported separately in [robustness.md](robustness.md).
 """
 
 
+def fill(text: str, blocks: dict) -> str:
+    """``text`` with the content between ``<!-- name -->`` and ``<!-- /name -->`` replaced by
+    ``blocks[name]`` for every name found (a marker without a block is left as it is)."""
+    for name, content in blocks.items():
+        pattern = re.compile(rf"(<!-- {re.escape(name)} -->\n).*?(\n<!-- /{re.escape(name)} -->)", re.S)
+        text = pattern.sub(lambda m: m.group(1) + content.strip() + m.group(2), text)
+    return text
+
+
+def doc_table(md: str) -> str:
+    """An experiment's markdown as a part of docs/results.md: its title two levels down and its
+    figure links relative to docs/."""
+    md = re.sub(r"^# ", "#### ", md.strip(), count=1)
+    return re.sub(r"\]\((figures/[^)]+)\)", r"](../experiments/results/\1)", md)
+
+
+def readme_table(results: Path) -> str | None:
+    """The README's KITTI 2015 validation table from the ``stereojax evaluate`` runs and
+    ``make bench`` (None while a file is missing)."""
+    bench_file = results / "bench.json"
+    runs = [(results / folder / "results.json", label, chain) for folder, label, chain in README_ROWS]
+    if not bench_file.is_file() or not all(p.is_file() for p, _, _ in runs):
+        return None
+    bench = json.loads(bench_file.read_text())
+    sgbm_s = bench["sgbm_padded_s"]
+    lines = ["| method | > 2 px % | > 3 px % | D1 % | EPE px | s / frame | × SGBM (`make bench`) |",
+             "|---|---|---|---|---|---|---|"]
+    sgbm_seconds = []
+    for i, (path, label, chain) in enumerate(runs):
+        data = json.loads(path.read_text())
+        m = data["mean"]["pipeline"]
+        cells = [f"{m[k]:.2f}" for k in ("bad2", "bad3", "d1", "epe")]
+        if i == 0:
+            cells = [f"**{c}**" for c in cells]
+        ratio = bench["chains"][chain]["warm_s"] / sgbm_s
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {m['seconds_warm']:.1f} | {ratio:.0f}× |")
+        if "sgbm" in data["mean"]:
+            sgbm = data["mean"]["sgbm"]
+            sgbm_seconds.append(sgbm["seconds_warm"])
+    lo, hi = min(sgbm_seconds), max(sgbm_seconds)
+    lines.append("| OpenCV StereoSGBM (3-way, left-padded) | " + " | ".join(
+        f"{sgbm[k]:.2f}" for k in ("bad2", "bad3", "d1", "epe")) + f" | {lo:.2f}–{hi:.2f} | 1× |")
+    return "\n".join(lines)
+
+
+def speed_table(results: Path) -> str | None:
+    """The README's speed table from ``make bench`` (None without bench.json)."""
+    bench_file = results / "bench.json"
+    if not bench_file.is_file():
+        return None
+    bench = json.loads(bench_file.read_text())
+    sgbm_s = bench["sgbm_padded_s"]
+    lines = ["| method | warm s / frame | × SGBM |", "|---|---|---|", f"| OpenCV StereoSGBM | {sgbm_s:.3f} | 1× |"]
+    for chain, label in (("census", "census chain"), ("kitti2015_compact", "`kitti2015_compact`"),
+                         ("kitti2015", "`best` = `kitti2015`")):
+        s = bench["chains"][chain]["warm_s"]
+        lines.append(f"| {label} | {s:.2f} | {s / sgbm_s:.0f}× |")
+    return "\n".join(lines)
+
+
+def write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def fill_file(path: Path, blocks: dict) -> bool:
+    """Fill the generated tables of one markdown file; whether it changed."""
+    if not path.is_file():
+        return False
+    old = path.read_text()
+    new = fill(old, {k: v for k, v in blocks.items() if v is not None})
+    if new != old:
+        write_text(path, new)
+    return new != old
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="collect the --quick outputs instead")
+    ap.add_argument("--quick", action="store_true", help="collect the --quick outputs instead (the README "
+                    "and docs are then left as they are)")
     ap.add_argument("--results", default=str(RESULTS))
+    ap.add_argument("--root", default=str(ROOT), help="the project folder whose README.md and docs/ are filled")
     args = ap.parse_args()
     results = Path(args.results)
     parts, missing = [INTRO], []
@@ -48,10 +144,16 @@ def main():
             missing.append(stem)
             parts.append(f"## {stem}\n\nNot run yet: `{command}`.")
     out = results / ("REPORT_quick.md" if args.quick else "REPORT.md")
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text("\n\n".join(parts) + "\n")
-    tmp.replace(out)
+    write_text(out, "\n\n".join(parts) + "\n")
     print(f"-> {out}" + (f" (missing: {', '.join(missing)})" if missing else ""))
+    if args.quick:
+        return
+    root = Path(args.root)
+    docs = {name: doc_table((results / f"{name}.md").read_text()) for name in DOC_TABLES
+            if (results / f"{name}.md").is_file()}
+    readme = {"results_table": readme_table(results), "speed_table": speed_table(results)}
+    for path, blocks in ((root / "docs" / "results.md", docs), (root / "README.md", readme)):
+        print(f"-> {path}" + (" (tables filled)" if fill_file(path, blocks) else " (tables up to date)"))
 
 
 if __name__ == "__main__":

@@ -25,24 +25,12 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
-
-import functools  # noqa: E402
-
-import jax  # noqa: E402
-
-from stereojax import pipeline  # noqa: E402
-from stereojax.data.datasets import parse_frames  # noqa: E402
-from stereojax.compile_cache import bucket_shape  # noqa: E402
-from stereojax.config import StereoConfig, preset  # noqa: E402
-from stereojax.data.datasets import load_dataset, search_range  # noqa: E402
-from stereojax.data.io import write_json  # noqa: E402
-from stereojax.learned_cost import ranked_dense_cost  # noqa: E402
-from stereojax.metrics import evaluate  # noqa: E402
-from stereojax.models import learned_config, load_model, shipped_weights  # noqa: E402
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+from stereojax import pipeline
+from stereojax.config import StereoConfig, preset
+from stereojax.data.datasets import DEFAULT_DATA, load_dataset, parse_frames, search_range
+from stereojax.data.io import write_json
+from stereojax.evaluation import evaluate_frames
+from stereojax.models import learned_config, load_model, shipped_weights
 
 #: (section, field, values tried); the shipped value is always among the candidates
 SPACE = [
@@ -86,17 +74,6 @@ SPACE_LOCAL = [
 SPACES = {"full": SPACE, "small": SPACE_SMALL, "local": SPACE_LOCAL}
 
 
-@functools.partial(jax.jit, static_argnames=("config", "net"))
-def _volume(left, right, valid, config, variables, net):
-    fl, fr, ranked = pipeline.learned_front(left, right, valid, config, variables, net)
-    return ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid)
-
-
-@functools.partial(jax.jit, static_argnames=("config",))
-def _back(vol, left, right, valid, config):
-    return pipeline.chain_from_volume(vol, left, right, config, False, valid)["disparity"]
-
-
 def with_value(cfg: StereoConfig, section: str, name: str, value) -> StereoConfig:
     sub = dataclasses.replace(getattr(cfg, section), **{name: value})
     try:
@@ -105,37 +82,32 @@ def with_value(cfg: StereoConfig, section: str, name: str, value) -> StereoConfi
         return None
 
 
-def cache_volumes(samples, model, base: StereoConfig, max_disp) -> list:
-    """The learned volume of every sample, computed once: ``[(name, max_disp, left, right,
-    valid, volume, sample)]``, padded to the size bucket. max_disp(sample) -> disparities."""
-    cache, t0 = [], time.perf_counter()
-    for s in samples:
-        md = max_disp(s)
-        cfg = base.with_max_disp(md)
-        gl, gr = pipeline.prepare_pair(s.left, s.right, cfg)
-        shape = bucket_shape(*gl.shape)
-        lp, rp = pipeline.pad_to(gl, shape), pipeline.pad_to(gr, shape)
-        valid = np.array(gl.shape, np.int32)
-        vol = _volume(lp, rp, valid, cfg, model.variables, model.net)
-        cache.append((s.name, md, lp, rp, valid, jax.device_get(vol), s))
-        print(f"volume {s.name} ({gl.shape[1]}x{gl.shape[0]}, {md} disparities): "
+def cache_volumes(samples, model, base: StereoConfig, max_disp) -> dict:
+    """The learned volume of every sample, computed once (:meth:`stereojax.Predictor.volume`):
+    ``{"model", "samples", "max_disp": {name: D}, "volumes": {name: Volume}}``.
+    max_disp(sample) -> disparities."""
+    cache = {"model": model, "samples": list(samples), "max_disp": {}, "volumes": {}}
+    t0 = time.perf_counter()
+    for s in cache["samples"]:
+        md = cache["max_disp"][s.name] = max_disp(s)
+        cache["volumes"][s.name] = pipeline.Predictor(base.with_max_disp(md), model).volume(s.left, s.right)
+        print(f"volume {s.name} ({s.left.shape[1]}x{s.left.shape[0]}, {md} disparities): "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
     return cache
 
 
 def score(cache, cfg: StereoConfig, threshold: str = "bad3") -> tuple[float, list[float]]:
     """Mean error (``threshold``: bad2, bad3, ... or "bad2+bad3" for their mean; on the sample's
-    GT) of the chain ``cfg``
-    run on the cached volumes, and the per-frame errors."""
-    errs = []
-    for _, md, lp, rp, valid, vol, s in cache:
-        disp = np.asarray(_back(vol, lp, rp, valid, cfg.with_max_disp(md)))[:valid[0], :valid[1]]
-        m = evaluate(disp, s.gt, s.gt_valid)
-        errs.append(float(np.mean([m[k] for k in threshold.split("+")])))
+    GT) of the chain ``cfg`` run on the cached volumes, and the per-frame errors."""
+    def from_volume(s, md):
+        return pipeline.Predictor(cfg.with_max_disp(md), cache["model"]).from_volume(cache["volumes"][s.name])
+
+    rows = evaluate_frames(cache["samples"], {"chain": from_volume}, lambda s: cache["max_disp"][s.name])["frames"]
+    errs = [float(sum(r["chain"][k] for k in threshold.split("+")) / len(threshold.split("+"))) for r in rows]
     # every setting is a new program: drop the old ones (a search of ~75 KITTI-sized programs
     # kept in memory ended in "LLVM compilation error: Cannot allocate memory" here)
-    _back.clear_cache()
-    return float(np.mean(errs)), errs
+    pipeline.disparity_from_volume.clear_cache()
+    return float(sum(errs) / len(errs)), errs
 
 
 def coordinate_search(cache, base: StereoConfig, space=SPACE, rounds: int = 2, threshold: str = "bad3",
@@ -188,9 +160,10 @@ def main():
                     help="'preset' (preset('learned')) or a model (shipped name or weights path) "
                          "whose stored chain settings the search starts from")
     ap.add_argument("--tag", default="", help="suffix of the output file names")
+    ap.add_argument("--data", default=DEFAULT_DATA, help=f"shared data root (default {DEFAULT_DATA})")
     ap.add_argument("--out", default="experiments/results")
     args = ap.parse_args()
-    root = DATA / ("kitti2015/training" if args.dataset == "kitti2015" else "middlebury")
+    root = Path(args.data) / ("kitti2015/training" if args.dataset == "kitti2015" else "middlebury")
     frames = parse_frames(args.frames) if args.dataset == "kitti2015" else args.frames.split(",")
     model = load_model(args.weights or shipped_weights(args.dataset))
     base = preset("learned") if args.start == "preset" else learned_config(args.start)
@@ -199,7 +172,7 @@ def main():
     cache = cache_volumes(samples, model, base, lambda s: search_range(args.dataset, s, None))
 
     def save(best, best_err, start_err, log):
-        write_search(Path(args.out), args, [c[0] for c in cache], base, best, best_err, start_err, log)
+        write_search(Path(args.out), args, [x.name for x in cache["samples"]], base, best, best_err, start_err, log)
 
     threshold = "bad3" if args.dataset == "kitti2015" else "bad2+bad3"
     space = SPACES[args.space]

@@ -19,12 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .data.datasets import DEFAULT_DATA
+
 KITTI_SHAPE = (375, 1242)
-
-
-#: where ``make bench`` looks for the shared data when not told (relative to the working folder,
-#: the project root for the Makefile)
-DEFAULT_DATA = "../shared/data"
 
 
 def _kitti_bench_paths(data=None) -> tuple[Path, Path]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
+from pathlib import Path
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping
 
@@ -207,6 +208,15 @@ class StereoConfig:
         if not isinstance(data, dict):
             raise ConfigError(f"config JSON must be an object, got {type(data).__name__}")
         return cls.from_dict(data)
+
+    @classmethod
+    def from_file(cls, path) -> "StereoConfig":
+        """The config of a JSON file (``stereojax ... --config FILE``)."""
+        try:
+            text = Path(path).read_text()
+        except OSError as exc:
+            raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from None
+        return cls.from_json(text)
 
     def with_max_disp(self, max_disp: int) -> "StereoConfig":
         return replace(self, max_disp=_as_int(max_disp)).validate()

@@ -99,7 +99,7 @@ def naive_dense_cost(net: NetConfig, variables, fl, fr, max_disp: int) -> jax.Ar
     return jnp.stack(cols, axis=-1)
 
 
-def _head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
+def head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
     """``f32[H, W, K]``: head cost 1 - s at the disparities ``cand`` ``i32[H, W, K]``.
 
     fl, fr: tower features of the left and right view ``f32[H, W, F]``. The split first layer
@@ -214,7 +214,7 @@ def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, conf
     # a barrier keeps XLA from fusing the ranking into the head's loop (measured: 1.5x slower)
     ranked = jax.lax.optimization_barrier(ranked)
     cand = ranked[..., :k1]
-    cost = _head_at(model, variables, fl, fr, cand, c.rows_per_tile)
+    cost = head_at(model, variables, fl, fr, cand, c.rows_per_tile)
     yy, xx = jnp.mgrid[:h, :w]
     vol = jnp.full((h, w, d), fill, jnp.float32).at[yy[..., None], xx[..., None], cand].set(cost)
     if m == 0:

@@ -71,14 +71,19 @@ def chain_peak_bytes(height: int, width: int, config, keep: bool = False) -> int
     return int(volumes(config, keep) * height * width * config.max_disp * 4) + OVERHEAD
 
 
-def _meminfo_available() -> int | None:
+def _proc_bytes(path: str, key: str) -> int | None:
+    """The ``key:`` line of a /proc status file (``NNN kB``) in bytes, None if unreadable."""
     try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
+        for line in Path(path).read_text().splitlines():
+            if line.startswith(key + ":"):
                 return int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
     return None
+
+
+def _meminfo_available() -> int | None:
+    return _proc_bytes("/proc/meminfo", "MemAvailable")
 
 
 def _cgroup_available() -> int | None:
@@ -112,12 +117,9 @@ def peak_rss_bytes() -> int:
     """This process's peak resident set size: VmHWM of /proc/self/status (the high-water mark of
     this program's own memory; ``ru_maxrss`` of a child would also count what its parent held
     when it forked), else ``ru_maxrss``."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
+    hwm = _proc_bytes("/proc/self/status", "VmHWM")
+    if hwm is not None:
+        return hwm
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024

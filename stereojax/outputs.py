@@ -3,9 +3,24 @@ calibration, depth (PNG, npy) and a coloured point cloud; every file atomically.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
+
+from .errors import OutputError
+
+
+def output_folder(path) -> Path:
+    """Create the output folder and check that it is writable, before any long computation."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create output folder {path}: {exc.strerror}") from None
+    if not path.is_dir() or not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"output folder {path} is not writable")
+    return path
 
 
 def color_scale(disp, gt=None, gt_valid=None) -> float:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import threading
+from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -252,6 +253,37 @@ def learned_back(left, right, valid, fl, fr, ranked, config: StereoConfig, varia
     return chain_from_volume(vol, left, right, config, False, valid)["disparity"]
 
 
+@functools.partial(jax.jit, static_argnames=("config", "net"))
+def _volume_padded(left, right, valid, config: StereoConfig, variables=None, net=None):
+    """The left-view matching cost ``f32[H, W, D]`` of a padded pair (the pruned learned cost in
+    two programs, as the chain runs it)."""
+    if not _split_learned(config, net):
+        return _left_volume(left, right, config, variables, net, valid)
+    from .learned_cost import ranked_dense_cost
+
+    fl, fr, ranked = learned_front(left, right, valid, config, variables, net)
+    return ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid)
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def disparity_from_volume(vol, left, right, valid, config: StereoConfig):
+    """Everything after the matching cost (:func:`chain_from_volume`) on a padded pair; the
+    disparity ``f32[H, W]`` of the bucket (crop it to ``valid``)."""
+    return chain_from_volume(vol, left, right, config, False, valid)["disparity"]
+
+
+@dataclass(frozen=True)
+class Volume:
+    """A pair's left-view matching cost, kept to run the rest of the chain on it many times
+    (:meth:`Predictor.volume`): the cost ``f32[Hb, Wb, D]`` and the grey images ``f32[Hb, Wb]``,
+    padded to the size bucket, and ``valid`` = the real (rows, columns)."""
+
+    cost: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    valid: np.ndarray
+
+
 def pad_to(grey: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Pad ``f32[H, W]`` on the right and bottom to ``shape`` by repeating the last column/row."""
     h, w = grey.shape
@@ -388,6 +420,48 @@ class Predictor:
     def __call__(self, left, right) -> np.ndarray:
         """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair."""
         return self.run(*self.prepare(left, right))
+
+    def volume(self, left, right) -> Volume:
+        """The pair's matching cost with this predictor's cost settings, padded to its size
+        bucket, for :meth:`from_volume` (e.g. to try many back-end settings on one volume)."""
+        from .compile_cache import bucket_shape
+
+        gl, gr = self.prepare(left, right)
+        shape = bucket_shape(*gl.shape)
+        lp, rp, valid = pad_to(gl, shape), pad_to(gr, shape), np.array(gl.shape, np.int32)
+        cost = _volume_padded(lp, rp, valid, self.config, self.variables, self.net)
+        return Volume(jax.device_get(cost), lp, rp, valid)
+
+    def from_volume(self, volume: Volume) -> np.ndarray:
+        """The disparity ``f32[H, W]`` of a pair from its :meth:`volume`, with this predictor's
+        aggregation, SGM and refinement settings (the cost settings are the volume's). Each new
+        setting compiles a program; ``disparity_from_volume.clear_cache()`` frees them."""
+        disp = disparity_from_volume(volume.cost, volume.left, volume.right, volume.valid, self.config)
+        return np.asarray(disp)[:volume.valid[0], :volume.valid[1]]
+
+    def timed(self, left, right, phases=None) -> tuple[np.ndarray, dict]:
+        """(disparity, timings) of a pair, compilation timed apart: ``timings`` has ``seconds``
+        (the run), ``compile_s`` (0 when this process had compiled the chain already), the
+        ``bucket`` [H, W] and the ``device``. ``phases``: a :class:`stereojax.progress.Phases`
+        that shows each step (default: silent)."""
+        from .compile_cache import bucket_shape
+        from .progress import Phases
+
+        phases = phases or Phases(quiet=True)
+        gl, gr = self.prepare(left, right)
+        shape = bucket_shape(*gl.shape)
+        compile_s = 0.0
+        if not self.is_compiled(*gl.shape):
+            phases.start(f"compiling the {self.config.cost.method} chain for {shape[1]}x{shape[0]} "
+                         f"(size bucket of {gl.shape[1]}x{gl.shape[0]}), {self.config.max_disp} disparities")
+            self.compiled(*gl.shape)
+            compile_s = phases.done()
+        phases.start(f"computing the disparity of {gl.shape[1]}x{gl.shape[0]}")
+        disp = self.run(gl, gr)
+        secs = phases.done()
+        device = self.device if self.device is not None else jax.devices()[0]
+        return disp, {"seconds": secs, "compile_s": compile_s, "bucket": [int(shape[0]), int(shape[1])],
+                      "device": str(device)}
 
     def stages(self, left, right) -> dict[str, np.ndarray]:
         """Every intermediate result (see :func:`stages`)."""

@@ -37,6 +37,14 @@ def _path_step(prev: jax.Array, c: jax.Array, p1, p2) -> jax.Array:
     return c + best - m
 
 
+def _step_into(total, cost, prev, i, axis: int, p1, p2):
+    """One step of a path at row (axis 0) or column (axis 1) ``i``: the path cost there from
+    ``prev``, added into ``total``; returns (path cost, total)."""
+    out = _path_step(prev, jax.lax.dynamic_index_in_dim(cost, i, axis, keepdims=False), p1, p2)
+    line = jax.lax.dynamic_index_in_dim(total, i, axis, keepdims=False)
+    return out, jax.lax.dynamic_update_index_in_dim(total, line + out, i, axis)
+
+
 def _penalties(cfg, big_left, big_right, p1_scale=1.0):
     """Per-pixel (p1, p2) from boolean 'large gradient' maps (MC-CNN's rule).
 
@@ -89,12 +97,7 @@ def _row_path(cost, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0, 
         br = None
         if big_right is not None:
             br = jax.lax.dynamic_index_in_dim(big_right, y, 0, keepdims=False)[match_col]
-        p1, p2 = _penalties(cfg, bl, br, p1_scale)
-        c = jax.lax.dynamic_index_in_dim(cost, y, 0, keepdims=False)
-        out = _path_step(prev, c, p1, p2)
-        row = jax.lax.dynamic_index_in_dim(total, y, 0, keepdims=False)
-        total = jax.lax.dynamic_update_index_in_dim(total, row + out, y, 0)
-        return out, total
+        return _step_into(total, cost, prev, y, 0, *_penalties(cfg, bl, br, p1_scale))
 
     init = jnp.zeros((w, max_disp), cost.dtype)
     return jax.lax.fori_loop(0, r1 - r0, body, (init, total))[1]
@@ -118,12 +121,7 @@ def _column_path(cost, total, big_left, big_right, cfg, dx, real=None):
         if big_right is not None:
             # columns x - d for d = 0 .. D-1, i.e. padded columns x + D - d, reversed slice
             br = jax.lax.dynamic_slice_in_dim(padded, x + 1, max_disp, axis=1)[:, ::-1]
-        p1, p2 = _penalties(cfg, bl, br)
-        c = jax.lax.dynamic_index_in_dim(cost, x, 1, keepdims=False)
-        out = _path_step(prev, c, p1, p2)
-        col = jax.lax.dynamic_index_in_dim(total, x, 1, keepdims=False)
-        total = jax.lax.dynamic_update_index_in_dim(total, col + out, x, 1)
-        return out, total
+        return _step_into(total, cost, prev, x, 1, *_penalties(cfg, bl, br))
 
     init = jnp.zeros((h, max_disp), cost.dtype)
     return jax.lax.fori_loop(0, c1 - c0, body, (init, total))[1]

@@ -98,6 +98,14 @@ class TrainConfig:
         return dataclass_from_dict(cls, data).validate()
 
     @classmethod
+    def from_file(cls, path) -> "TrainConfig":
+        """The training config of a JSON file (``stereojax train --config FILE``)."""
+        try:
+            return cls.from_dict(json.loads(Path(path).read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ConfigError(f"cannot read training config {path}: {exc}") from None
+
+    @classmethod
     def from_stored(cls, stored: dict) -> "TrainConfig":
         """The training config of a checkpoint's or shipped model's stored config
         (``checkpoint.read_config``), which also carries the run's facts that are not settings
@@ -445,3 +453,57 @@ def _preview(cfg: TrainConfig, state, sample, rows: int = 64, cols: int = 320, m
     vol = learned_cost(cfg.net, variables, gl, gr, md, 16)
     return colorize_disparity(np.asarray(jnp.argmin(vol, -1)).astype(np.float32), md)
 
+
+
+def config_from_options(preset: str = "cpu", head: str = "downsize", loss: str | None = None,
+                        features: int | None = None, widths: Sequence[int] | None = None,
+                        distill_weight: float | None = None, augment: bool = False,
+                        **overrides) -> TrainConfig:
+    """The TrainConfig of ``stereojax train``'s options: the preset, its network narrowed to
+    ``features`` maps and hidden ``widths`` when given, distillation with ``distill_weight``,
+    augmentation, and the plain ``overrides`` (steps, seed, delta, lr) that are not None."""
+    from .nets import net_preset
+
+    over = {k: v for k, v in overrides.items() if v is not None}
+    if features or widths:
+        net = net_preset(head, features or train_preset(preset, head=head).net.features)
+        if widths:
+            net = dataclasses.replace(net, widths=tuple(widths)).validate()
+        over["net"] = net
+    if distill_weight is not None:
+        over["distill"] = distill_weight
+    cfg = train_preset(preset, head=head, loss=loss, **over)
+    return with_augmentation(cfg) if augment else cfg
+
+
+def train_on_dataset(cfg: TrainConfig, data, dataset: str, frames: str, val_frames: str | None, out_dir,
+                     resume: bool = False, devices: int | None = None, init: str | None = None,
+                     distill: str | None = None) -> dict:
+    """:func:`fit` on frames of a dataset (``frames``/``val_frames``: specs such as
+    000001-000020 or a comma list of scenes), starting from the weights ``init`` and distilling
+    from ``distill`` (checkpoint paths or shipped names) when given. Returns fit's summary."""
+    from .data.datasets import load_dataset, parse_frames
+    from .models import load_model, weights_path
+
+    gt = "occ" if dataset == "middlebury" else "noc"
+
+    def load(spec):
+        return [ld() for _, ld in load_dataset(data, dataset, parse_frames(spec), gt=gt)]
+
+    train_samples = load(frames)
+    val_samples = load(val_frames) if val_frames else None
+    info = {"data": {"dataset": dataset, "frames": [s.name for s in train_samples],
+                     "val_frames": [s.name for s in val_samples or []]}}
+    print(f"training {cfg.net.head} head ({cfg.loss}, delta {cfg.delta}) on {len(train_samples)} "
+          f"{dataset} images, {cfg.steps} steps -> {out_dir}", flush=True)
+    model = teacher = None
+    if init:
+        model = load_model(weights_path(init))
+        info["init"] = init
+    if cfg.distill:
+        if not distill:
+            raise ConfigError("the training config distils (distill > 0): name the teacher with --distill")
+        teacher = load_model(weights_path(distill))
+        info["distill_from"] = distill
+    return fit(cfg, train_samples, val_samples, out_dir, resume=resume, info=info, devices=devices,
+               init=model, teacher=teacher)

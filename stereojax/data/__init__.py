@@ -2,6 +2,7 @@
 
 from .datasets import (
     DATASETS,
+    DEFAULT_DATA,
     Calibration,
     StereoSample,
     list_kitti2012,
@@ -30,7 +31,7 @@ from .io import (
 )
 
 __all__ = [
-    "DATASETS", "Calibration", "StereoSample", "load_pair", "list_kitti2015", "load_kitti2015",
+    "DATASETS", "DEFAULT_DATA", "Calibration", "StereoSample", "load_pair", "list_kitti2015", "load_kitti2015",
     "list_kitti2012", "load_kitti2012", "list_middlebury", "load_middlebury", "load_builtin_sample",
     "load_dataset", "search_range", "atomic_output", "read_image", "read_pfm", "write_pfm", "read_kitti_disparity",
     "write_kitti_disparity", "colorize_disparity", "write_color_disparity", "error_map",

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -89,6 +90,19 @@ class StereoSample:
     gt_noc_valid: np.ndarray | None = None
     calib: Calibration | None = None
     max_disp_hint: int | None = None
+
+    def crop(self, rows: int, cols: int) -> "StereoSample":
+        """The bottom-centre ``rows x cols`` crop (images and ground truth alike; the
+        calibration is dropped, its principal point no longer fits)."""
+        h, w = self.left.shape[:2]
+        y0, x0 = max(h - rows, 0), max((w - cols) // 2, 0)
+        sl = (slice(y0, y0 + rows), slice(x0, x0 + cols))
+
+        def cut(a):
+            return None if a is None else np.ascontiguousarray(a[sl])
+
+        return dataclasses.replace(self, left=cut(self.left), right=cut(self.right), gt=cut(self.gt),
+                                   gt_valid=cut(self.gt_valid), gt_noc_valid=cut(self.gt_noc_valid), calib=None)
 
 
 # ---- helpers -----------------------------------------------------------------------------------
@@ -231,17 +245,22 @@ def load_kitti2015(root: PathLike, frame: str | int, gt: str = "noc") -> StereoS
     name = f"{frame}_10.png"
     if not ((root / "image_2" / name).is_file() and (root / "image_3" / name).is_file()):
         raise _unknown_frame(frame, root, list_kitti2015(root))
-    left, right = io.read_image(root / "image_2" / name), io.read_image(root / "image_3" / name)
-    _check_pair(left, right)
-    noc, noc_valid = _read_kitti_gt(root / "disp_noc_0" / name, left)
-    if gt == "noc":
-        disp, valid = noc, noc_valid
-    else:
-        disp, valid = _read_kitti_gt(root / "disp_occ_0" / name, left)
+    left, right, disp, valid, noc_valid = _kitti_views(root, ("image_2", "image_3"), ("disp_noc_0", "disp_occ_0"),
+                                                       name, gt)
     calib_path = root / "calib_cam_to_cam" / f"{frame}.txt"
     calib = _calib_from_projections(calib_path, "P_rect_02", "P_rect_03") if calib_path.is_file() else None
     return StereoSample(name=frame, left=left, right=right, gt=disp, gt_valid=valid,
                         gt_noc_valid=noc_valid, calib=calib)
+
+
+def _kitti_views(root: Path, images: tuple[str, str], gts: tuple[str, str], name: str, gt: str):
+    """(left, right, gt disparity, gt valid, noc valid) of a KITTI frame: the images from the
+    folders ``images``, the ground truth from ``gts`` = (noc folder, occ folder)."""
+    left, right = io.read_image(root / images[0] / name), io.read_image(root / images[1] / name)
+    _check_pair(left, right)
+    noc, noc_valid = _read_kitti_gt(root / gts[0] / name, left)
+    disp, valid = (noc, noc_valid) if gt == "noc" else _read_kitti_gt(root / gts[1] / name, left)
+    return left, right, disp, valid, noc_valid
 
 
 # ---- KITTI 2012 --------------------------------------------------------------------------------
@@ -279,13 +298,7 @@ def load_kitti2012(root: PathLike, frame: str | int, gt: str = "noc") -> StereoS
     if views is None:
         raise _unknown_frame(frame, root, list_kitti2012(root))
     name = f"{frame}_10.png"
-    left, right = io.read_image(root / views[0] / name), io.read_image(root / views[1] / name)
-    _check_pair(left, right)
-    noc, noc_valid = _read_kitti_gt(root / "disp_noc" / name, left)
-    if gt == "noc":
-        disp, valid = noc, noc_valid
-    else:
-        disp, valid = _read_kitti_gt(root / "disp_occ" / name, left)
+    left, right, disp, valid, noc_valid = _kitti_views(root, views, ("disp_noc", "disp_occ"), name, gt)
     calib = None
     calib_path = root / "calib" / f"{frame}.txt"
     if calib_path.is_file():
@@ -426,6 +439,9 @@ def load_builtin_sample() -> StereoSample:
 # ---- whole data sets ---------------------------------------------------------------------------
 
 #: disparities searched on KITTI (the largest KITTI 2015 GT disparity is about 230 px at full size)
+#: where the experiments, `stereojax bench` and the Makefile look for the shared data sets
+#: (KITTI 2015/2012, Middlebury) unless told otherwise with --data: beside the checkout
+DEFAULT_DATA = "../shared/data"
 KITTI_MAX_DISP = 228
 
 

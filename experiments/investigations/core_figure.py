@@ -1,7 +1,7 @@
 """Figure of the classical pipeline on KITTI 2015 validation frames: left image, disparity,
 KITTI-style error map, one row block per frame, next to OpenCV SGBM (left-padded).
 
-Command:  .venv/bin/python experiments/core_figure.py [--frames 000025,000021]
+Command:  .venv/bin/python experiments/investigations/core_figure.py [--frames 000025,000021]
 Running time here: ~20 s. Writes experiments/results/figures/core_kitti2015.png and prints
 the > 3 px error of both methods on each frame.
 """
@@ -13,13 +13,12 @@ import cv2
 import numpy as np
 
 
-import stereojax  # noqa: E402
-from stereojax.baselines import sgbm_disparity  # noqa: E402
-from stereojax.data import io, load_kitti2015  # noqa: E402
-from stereojax.metrics import evaluate, interpolate_background  # noqa: E402
+import stereojax
+from stereojax.baselines import sgbm_disparity
+from stereojax.data import DEFAULT_DATA, io, load_kitti2015
+from stereojax.metrics import evaluate, interpolate_background
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
-OUT = Path(__file__).resolve().parent / "results" / "figures" / "core_kitti2015.png"
+OUT = Path(__file__).resolve().parents[1] / "results" / "figures" / "core_kitti2015.png"
 
 
 def label(img, text):
@@ -31,10 +30,11 @@ def label(img, text):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", default="000025,000021")
+    ap.add_argument("--data", default=DEFAULT_DATA, help=f"shared data root (default {DEFAULT_DATA})")
     args = ap.parse_args()
     rows = []
     for frame in args.frames.split(","):
-        s = load_kitti2015(DATA, frame)
+        s = load_kitti2015(Path(args.data) / "kitti2015" / "training", frame)
         scale = float(s.gt[s.gt_valid].max())
         ours = stereojax.disparity(s.left, s.right, stereojax.preset("census", 228))
         cv_d, cv_v = sgbm_disparity(s.left, s.right, 228, pad=True)

@@ -1,6 +1,6 @@
 """Grid search of pipeline settings on KITTI 2015 training frames (never the validation split).
 
-Command:  .venv/bin/python experiments/tune_pipeline.py GRID.txt [--frames 1,3,5,...,19]
+Command:  .venv/bin/python experiments/investigations/tune_pipeline.py GRID.txt [--frames 1,3,5,...,19]
 GRID.txt holds one JSON object of config overrides per line (e.g. {"sgm": {"p1": 0.45}}).
 Running time here: ~35 s per line for 10 frames (2 CPU cores), plus ~12 s compilation.
 Prints, per line, the mean > 3 px error (non-occluded GT; the chain's output is dense) and
@@ -17,21 +17,20 @@ import jax.numpy as jnp
 import numpy as np
 
 
-from stereojax import pipeline  # noqa: E402
-from stereojax.config import StereoConfig  # noqa: E402
-from stereojax.data import load_kitti2015  # noqa: E402
-from stereojax.metrics import evaluate  # noqa: E402
+from stereojax import pipeline
+from stereojax.config import StereoConfig
+from stereojax.data import DEFAULT_DATA, load_kitti2015
+from stereojax.metrics import evaluate
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("grid")
     ap.add_argument("--frames", default=",".join(str(i) for i in range(1, 21, 2)))
-    ap.add_argument("--data", default=str(DATA))
+    ap.add_argument("--data", default=DEFAULT_DATA, help=f"shared data root (default {DEFAULT_DATA})")
     args = ap.parse_args()
-    samples = [load_kitti2015(args.data, int(f)) for f in args.frames.split(",")]
+    samples = [load_kitti2015(Path(args.data) / "kitti2015" / "training", int(f)) for f in args.frames.split(",")]
     for line in Path(args.grid).read_text().splitlines():
         line = line.strip()
         if not line or line.startswith("#"):

@@ -2,7 +2,7 @@
 training frames (the frames the shipped model trained on: the numbers rank schemes, they are
 not a result; the chosen scheme is then scored on the validation frames 000021-000030).
 
-Command:  .venv/bin/python experiments/prune_schemes.py [--frames 000001,000003,...]
+Command:  .venv/bin/python experiments/investigations/prune_schemes.py [--frames 000001,000003,...]
               [--cache runs/prune_cache] [--out experiments/results/speed_schemes.md]
 Running time here (2 cores): about 45 s per frame to cache the census top-16 candidates and
 the head's cost at them (and at d0-2..d0+2), then about 4 s per frame and scheme.
@@ -22,30 +22,29 @@ from pathlib import Path
 import numpy as np
 
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
+import jax
+import jax.numpy as jnp
 
-from stereojax import learned_cost as lc, pipeline  # noqa: E402
-from stereojax.config import preset  # noqa: E402
-from stereojax.data import load_kitti2015  # noqa: E402
-from stereojax.metrics import evaluate  # noqa: E402
-from stereojax.models import load_model, shipped_weights  # noqa: E402
-from stereojax.nets import MatchNet  # noqa: E402
+from stereojax import learned_cost as lc, pipeline
+from stereojax.config import preset
+from stereojax.data import DEFAULT_DATA, load_kitti2015
+from stereojax.metrics import evaluate
+from stereojax.models import load_model, shipped_weights
+from stereojax.nets import MatchNet
 
 D, K = 228, 16
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
 CFG = preset("learned", D)
 SCHEMES = [("census",), ("top", 16), ("top", 8), ("top", 6), ("top", 4), ("window", 1), ("window", 2),
            ("top+", 4, 0.25, 16), ("top+", 4, 0.3, 12), ("top+", 5, 0.25, 12), ("top+", 6, 0.2, 16),
            ("top+", 8, 0.2, 16)]
 
 
-def cache_frame(frame: str, folder: Path, model) -> Path:
+def cache_frame(frame: str, folder: Path, model, data: str) -> Path:
     path = folder / f"{frame}.npz"
     if path.exists():
         return path
     net, v = model.net, model.variables
-    s = load_kitti2015(DATA, frame)
+    s = load_kitti2015(Path(data) / "kitti2015" / "training", frame)
     gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(s.left, s.right, CFG))
 
     @jax.jit
@@ -54,7 +53,7 @@ def cache_frame(frame: str, folder: Path, model) -> Path:
         idx = jax.lax.top_k(-vol, K)[1].astype(jnp.int32)
         near = jnp.clip(idx[..., :1] + jnp.arange(-2, 3), 0, D - 1)
         fl, fr = lc.tower_features(net, v, left, right)
-        cost = lc._head_at(MatchNet(net), v, fl, fr, jnp.concatenate([idx, near], -1), 4)
+        cost = lc.head_at(MatchNet(net), v, fl, fr, jnp.concatenate([idx, near], -1), 4)
         return idx, cost
 
     idx, cost = compute(gl, gr)
@@ -106,12 +105,13 @@ def label(scheme) -> str:
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", default="000001,000003,000005,000007,000009,000011")
+    ap.add_argument("--data", default=DEFAULT_DATA, help=f"shared data root (default {DEFAULT_DATA})")
     ap.add_argument("--cache", default="runs/prune_cache")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "speed_schemes.md"))
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "results" / "speed_schemes.md"))
     args = ap.parse_args()
     model = load_model(shipped_weights("kitti2015"))
     frames = args.frames.split(",")
-    paths = [cache_frame(f, Path(args.cache), model) for f in frames]
+    paths = [cache_frame(f, Path(args.cache), model, args.data) for f in frames]
     post = jax.jit(lambda vol, a, b: pipeline.chain_from_volume(vol, a, b, CFG)["disparity"])
     census = jax.jit(lambda a, b: pipeline.disparity_grey(a, b, preset("census", D)))
     rows = []
@@ -127,7 +127,7 @@ def main():
     lines = [f"# Pruning schemes of the learned head (KITTI 2015 training frames {', '.join(frames)})", "",
              "| scheme | head evaluations / pixel | > 3 px % (mean) | per frame |", "|---|---|---|---|"]
     lines += [f"| {r[0]} | {r[1]:g} | {r[2]:.3f} | {', '.join(f'{e:.2f}' for e in r[3])} |" for r in rows]
-    lines += ["", f"Command: `python experiments/prune_schemes.py --frames {args.frames}`", ""]
+    lines += ["", f"Command: `python experiments/investigations/prune_schemes.py --frames {args.frames}`", ""]
     Path(args.out).write_text("\n".join(lines))
     print(f"-> {args.out}")
 

@@ -1,6 +1,6 @@
 """Disparity error of a trained network in the full chain, beside the census chain, on KITTI 2015.
 
-Command:  .venv/bin/python experiments/learned_eval.py WEIGHTS [--frames 000021,000022]
+Command:  .venv/bin/python experiments/investigations/learned_eval.py WEIGHTS [--frames 000021,000022]
                 [--candidates 0|K] [--unsure-share 0.2 --unsure-candidates 16] [--p1 0.5 --p2 8.0 --cbca 2]
                 [--out experiments/results/learned_kitti2015.json]
 Running time here (2 cores): exact mode ~4-5 min per KITTI frame (the downsize head is about
@@ -11,22 +11,18 @@ seconds per frame, and writes them to --out.
 
 import argparse
 import dataclasses
-import time
 from pathlib import Path
 
-
-
-import stereojax  # noqa: E402
-from stereojax.data.io import write_json  # noqa: E402
-from stereojax.data import load_kitti2015  # noqa: E402
-from stereojax.metrics import evaluate, mean_metrics  # noqa: E402
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti2015" / "training"
+import stereojax
+from stereojax.data.datasets import DEFAULT_DATA, load_dataset
+from stereojax.data.io import write_json
+from stereojax.evaluation import chain_method, evaluate_frames
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("weights")
+    ap.add_argument("--data", default=DEFAULT_DATA, help=f"shared data root (default {DEFAULT_DATA})")
     ap.add_argument("--frames", default="000021,000022,000023")
     ap.add_argument("--candidates", type=int, default=0, help="0 = exact head; K = pruned mode")
     ap.add_argument("--unsure-share", type=float, default=0.0,
@@ -35,7 +31,7 @@ def main():
     ap.add_argument("--p1", type=float, default=0.5)
     ap.add_argument("--p2", type=float, default=8.0)
     ap.add_argument("--cbca", type=int, default=2)
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "learned_kitti2015.json"))
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "results" / "learned_kitti2015.json"))
     args = ap.parse_args()
     model = stereojax.load_model(args.weights)
     base = stereojax.preset("learned", 228)
@@ -44,25 +40,18 @@ def main():
                                        unsure_candidates=args.unsure_candidates),
         cbca=dataclasses.replace(base.cbca, iterations_before=args.cbca),
         sgm=dataclasses.replace(base.sgm, p1=args.p1, p2=args.p2)).validate()
-    census = stereojax.preset("census", 228)
-    rows = []
-    for frame in args.frames.split(","):
-        s = load_kitti2015(DATA, frame)
-        t0 = time.perf_counter()
-        d_net = stereojax.disparity(s.left, s.right, cfg, params=model)
-        t_net = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        d_cen = stereojax.disparity(s.left, s.right, census)
-        t_cen = time.perf_counter() - t0
-        row = {"frame": frame, "learned": {**evaluate(d_net, s.gt, s.gt_valid), "seconds": t_net},
-               "census": {**evaluate(d_cen, s.gt, s.gt_valid), "seconds": t_cen}}
-        rows.append(row)
-        print(f"{frame}: learned {row['learned']['bad3']:.2f} % ({t_net:.0f} s)   "
-              f"census {row['census']['bad3']:.2f} % ({t_cen:.1f} s)", flush=True)
-    summary = {k: mean_metrics([r[k] for r in rows]) for k in ("learned", "census")}
+
+    def show(row, sample, disparities):
+        print(f"{row['frame']}: learned {row['learned']['bad3']:.2f} % ({row['learned']['seconds']:.0f} s)   "
+              f"census {row['census']['bad3']:.2f} % ({row['census']['seconds']:.1f} s)", flush=True)
+
+    items = load_dataset(args.data, "kitti2015", args.frames.split(","), gt="noc")
+    result = evaluate_frames(items, {"learned": chain_method(cfg, model),
+                                     "census": chain_method(stereojax.preset("census"))}, 228, on_frame=show)
+    summary = result["mean"]
     print(f"mean > 3 px: learned {summary['learned']['bad3']:.2f} %, census {summary['census']['bad3']:.2f} %")
-    write_json(Path(args.out), {"weights": str(args.weights), "config": cfg.to_dict(), "frames": rows,
-                                "mean": summary, "note": "first frame's seconds include compilation"})
+    write_json(Path(args.out), {"weights": str(args.weights), "config": cfg.to_dict(), "frames": result["frames"],
+                                "mean": summary, "note": "seconds exclude compilation (compile_s)"})
 
 
 if __name__ == "__main__":

@@ -1,0 +1,40 @@
+"""``make demo``: the built-in real pair through the chain, its outputs and its errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .data import io
+from .data.io import write_json
+from .evaluation import chain_method, evaluate_frames
+from .outputs import color_scale, write_prediction
+from .progress import Phases
+
+
+def run_demo(sample, run, out: Path) -> dict:
+    """Disparity, depth, point cloud and error map of ``sample`` (with ground truth and
+    calibration) by ``run`` (:class:`stereojax.models.Resolved`, its max_disp the sample's),
+    written into ``out``, each step shown on stdout. Returns the frame's scores."""
+    max_disp = run.config.max_disp
+    print(f"built-in sample: {sample.name} {sample.left.shape[1]}x{sample.left.shape[0]}, "
+          f"{max_disp} disparities, {run.description}")
+    phases = Phases()
+    phases.start("loading the model" if run.method == "learned" else "preparing")
+    model = run.model()
+    phases.done()
+    kept = {}
+    result = evaluate_frames([sample], {"pipeline": chain_method(run.config, model, phases)}, max_disp,
+                             on_frame=lambda row, s, disparities: kept.update(disparities))
+    disp, m = kept["pipeline"], result["frames"][0]["pipeline"]
+    phases.start("writing disparity, depth, point cloud and error map")
+    written = write_prediction(out, "", disp, sample.calib, sample.left, ply=True,
+                               color_max=color_scale(disp, sample.gt, sample.gt_valid))
+    io.write_png(out / "left.png", sample.left)
+    io.write_error_map(out / "error.png", disp, sample.gt, sample.gt_valid)
+    write_json(out / "metrics.json", {**m, "method": run.config.cost.method, "max_disp": max_disp})
+    phases.done()
+    print(f">2 px {m['bad2']:.2f} %   >3 px {m['bad3']:.2f} %   >4 px {m['bad4']:.2f} %   "
+          f">5 px {m['bad5']:.2f} %   EPE {m['epe']:.2f} px   ({m['seconds']:.1f} s, "
+          f"+ {m['compile_s']:.1f} s compiling)")
+    print(f"-> {out} ({', '.join(written + ['left.png', 'error.png', 'metrics.json'])})")
+    return m

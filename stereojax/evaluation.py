@@ -1,0 +1,213 @@
+"""Scoring methods on frames with ground truth: the one evaluation loop of stereojax.
+
+``stereojax evaluate``, the experiments and the model selection all call
+:func:`evaluate_frames`; a *method* is a function ``predict(sample, max_disp)`` that returns the
+disparity, ``(disparity, est_valid)``, or ``(disparity, info)`` with ``info`` a dict of timings
+(``seconds``, ``compile_s``, ...) and optionally ``est_valid``::
+
+    result = evaluate_frames(samples, {"best": chain_method(config, model), "sgbm": sgbm_method()},
+                             max_disp=228)
+    result["mean"]["best"]["bad3"], result["frames"][0]["sgbm"]["d1"]
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping
+
+import numpy as np
+
+from . import metrics
+
+COLUMNS = ["bad2", "bad3", "bad4", "bad5", "d1", "epe", "density", "seconds_warm"]
+LABELS = {"pipeline": "stereojax pipeline", "sgbm": "OpenCV SGBM, left-padded",
+          "sgbm_unpadded": "OpenCV SGBM, unpadded"}
+
+
+def chain_method(config, model=None, phases=None) -> Callable:
+    """The stereojax chain ``config`` (its max_disp replaced per frame) as a method: runs through
+    :class:`stereojax.pipeline.Predictor` on the calling :func:`~stereojax.devices.map_frames`
+    worker's device, compilation timed apart (``compile_s``)."""
+    from .devices import current_device
+    from .pipeline import Predictor
+
+    def predict(sample, max_disp):
+        predictor = Predictor(config.with_max_disp(max_disp), model, current_device())
+        return predictor.timed(sample.left, sample.right, phases)
+    return predict
+
+
+def sgbm_method(pad: bool = True) -> Callable:
+    """OpenCV StereoSGBM (:func:`stereojax.baselines.sgbm_disparity`) as a method; ``pad``: the
+    left image padded by max_disp so that the left border strip gets estimates."""
+    from .baselines import sgbm_disparity
+
+    def predict(sample, max_disp):
+        t0 = time.perf_counter()
+        disp, valid = sgbm_disparity(sample.left, sample.right, num_disp=max_disp, pad=pad)
+        return disp, {"est_valid": valid, "seconds": time.perf_counter() - t0, "compile_s": 0.0}
+    return predict
+
+
+def _split(out) -> tuple[np.ndarray, np.ndarray | None, dict]:
+    """(disparity, est_valid, info) of what a method returned."""
+    if not isinstance(out, tuple):
+        return out, None, {}
+    disp, extra = out
+    if isinstance(extra, Mapping):
+        info = dict(extra)
+        return disp, info.pop("est_valid", None), info
+    return disp, extra, {}
+
+
+def _load(item):
+    """(frame id, sample) of a sample or a ``(frame_id, load)`` pair (load() -> sample)."""
+    if isinstance(item, tuple):
+        frame_id, load = item
+        return frame_id, load()
+    return item.name, item
+
+
+def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp, *,
+                    fill: str = "interpolate", devices: list | None = None, on_frame=None,
+                    progress: str | None = None, total: int | None = None) -> dict:
+    """Run every method on every frame and score it with :func:`stereojax.metrics.evaluate`.
+
+    frames: samples (``.name``, ``.left``, ``.right``, ``.gt``, ``.gt_valid``) or ``(frame_id,
+    load)`` pairs that load one when its turn comes. methods: name -> ``predict(sample,
+    max_disp)``. max_disp: an int or ``max_disp(sample) -> int``. fill: pixels without estimate
+    (see :func:`~stereojax.metrics.evaluate`). devices: spread the frames over these devices
+    (:func:`~stereojax.devices.map_frames`). on_frame(row, sample, disparities): called in order
+    after each scored frame (e.g. to write its outputs). progress: a tqdm bar with this title on
+    stderr (None: no bar).
+
+    Returns ``{"frames": [row], "mean": {method: means}, "missing_gt": [frame ids]}`` where a row
+    is ``{"frame", "max_disp", method: {metrics..., "seconds", "warm", timings...}}``. A frame's
+    ``seconds`` are warm when the method timed compilation apart (``compile_s``) or when it ran
+    a frame of the same size and range before; ``mean[method]["seconds_warm"]`` is the mean over
+    warm frames (NaN if none). Frames without ground truth are listed in ``missing_gt``.
+    """
+    from .devices import map_frames
+
+    seen: dict[str, set] = {name: set() for name in methods}
+
+    def work(item):
+        frame_id, sample = _load(item)
+        if sample.gt is None:
+            return frame_id, sample, None, None
+        md = max_disp(sample) if callable(max_disp) else int(max_disp)
+        outputs = {}
+        for name, predict in methods.items():
+            t0 = time.perf_counter()
+            out = predict(sample, md)
+            outputs[name] = (out, time.perf_counter() - t0)
+        return frame_id, sample, md, outputs
+
+    bar = None
+    if progress is not None:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total if total is not None else _length(frames), desc=progress, unit="frame",
+                   file=sys.stderr, dynamic_ncols=True)
+    rows, missing, first = [], [], next(iter(methods))
+    try:
+        for frame_id, sample, md, outputs in map_frames(work, frames, devices):
+            if bar is not None:
+                bar.update(1)
+            if outputs is None:
+                missing.append(frame_id)
+                continue
+            row, disparities = {"frame": frame_id, "max_disp": md}, {}
+            for name, (out, secs) in outputs.items():
+                disp, est_valid, info = _split(out)
+                key = (sample.left.shape, md)
+                warm = "compile_s" in info or key in seen[name]
+                seen[name].add(key)
+                scores = metrics.evaluate(disp, sample.gt, sample.gt_valid, est_valid=est_valid, fill=fill)
+                row[name] = {**scores, "seconds": info.pop("seconds", secs), "warm": warm, **info}
+                disparities[name] = disp
+            rows.append(row)
+            if on_frame is not None:
+                on_frame(row, sample, disparities)
+            if bar is not None:
+                bar.set_postfix(bad3=f"{row[first]['bad3']:.2f}%")
+    finally:
+        if bar is not None:
+            bar.close()
+    return {"frames": rows, "mean": mean_rows(rows, list(methods)) if rows else {}, "missing_gt": missing}
+
+
+def _length(frames):
+    try:
+        return len(frames)
+    except TypeError:
+        return None
+
+
+def mean_rows(rows: list[dict], methods: list[str]) -> dict:
+    """Per method, the mean of every measure over frames (:func:`~stereojax.metrics.mean_metrics`)
+    and ``seconds_warm``, the mean seconds of the warm frames (NaN if none)."""
+    mean = {}
+    for m in methods:
+        mean[m] = metrics.mean_metrics([r[m] for r in rows])
+        warm = [r[m]["seconds"] for r in rows if r[m].get("warm", True)]
+        mean[m]["seconds_warm"] = float(np.mean(warm)) if warm else float("nan")
+    return mean
+
+
+def format_table(mean: Mapping[str, Mapping]) -> str:
+    """The means of :func:`evaluate_frames` as a markdown table, one row per method."""
+    head = ("| method | >2 px % | >3 px % | >4 px % | >5 px % | D1 % | EPE px | density % "
+            "| s/frame (warm) |")
+    lines = [head, "|" + "---|" * (len(COLUMNS) + 1)]
+    for name, m in mean.items():
+        cells = ["n/a" if np.isnan(m[c]) else f"{m[c]:.2f}" for c in COLUMNS]
+        lines.append(f"| {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: str = "interpolate",
+                     max_disp: int | None = None, sgbm: bool = False, devices: list | None = None) -> dict:
+    """``stereojax evaluate``: the chain of ``run`` (:class:`stereojax.models.Resolved`), and
+    OpenCV SGBM left-padded and unpadded with ``sgbm``, on the ``(frame_id, load)`` items of a
+    dataset (:func:`stereojax.data.datasets.load_dataset`).
+    Writes ``OUT/<frame>_disparity*.png``, ``<frame>_error.png``, ``results.json`` and
+    ``results.md``; prints the table. Frames without ``gt`` ground truth are skipped with a
+    warning (:class:`StereoInputError` when none has it). Returns what results.json holds."""
+    from pathlib import Path
+
+    from .data import io
+    from .data.datasets import search_range
+    from .errors import StereoInputError
+    from .outputs import color_scale, write_prediction
+
+    out = Path(out)
+    methods = {"pipeline": chain_method(run.config, run.model())}
+    if sgbm:
+        methods.update(sgbm=sgbm_method(pad=True), sgbm_unpadded=sgbm_method(pad=False))
+
+    def write(row, sample, disparities):
+        disp = disparities["pipeline"]
+        write_prediction(out, f"{row['frame']}_", disp, color_max=color_scale(disp, sample.gt, sample.gt_valid))
+        io.write_error_map(out / f"{row['frame']}_error.png", disp, sample.gt, sample.gt_valid)
+
+    result = evaluate_frames(items, methods, lambda s: search_range(dataset, s, max_disp), fill=fill,
+                             devices=devices, on_frame=write, progress=f"evaluate {dataset}")
+    per_frame, missing_gt = result["frames"], result["missing_gt"]
+    if missing_gt:
+        names = ", ".join(missing_gt[:5]) + (" ..." if len(missing_gt) > 5 else "")
+        msg = f"no {gt} ground truth for {len(missing_gt)} frame(s): {names}"
+        if not per_frame:
+            raise StereoInputError(msg + "; nothing to evaluate")
+        print(f"warning: {msg}; skipped", file=sys.stderr)
+    results = {"dataset": dataset, "gt": gt, "fill": fill, "frames": per_frame, "mean": result["mean"],
+               "config": run.with_max_disp(per_frame[0]["max_disp"]).config.to_dict()}
+    io.write_json(out / "results.json", results)
+    table = format_table(result["mean"])
+    with io.atomic_output(out / "results.md") as tmp:
+        Path(tmp).write_text(f"# {dataset}, {len(per_frame)} frames, {gt} GT, missing estimates: {fill}\n\n"
+                             f"{table}\n")
+    print(table)
+    print(f"-> {out}/results.json")
+    return results

@@ -1,0 +1,25 @@
+"""What a long command shows while it works: one line per phase on stdout (stderr stays for
+warnings and errors), "what is being done ... how long it took"."""
+
+from __future__ import annotations
+
+import time
+
+
+class Phases:
+    """``start(what)`` prints "stereojax: what ..."; ``done()`` ends the line with the seconds
+    it took and returns them. ``quiet=True`` only times."""
+
+    def __init__(self, quiet: bool = False):
+        self.quiet = quiet
+
+    def start(self, what: str):
+        self._t0, self._what = time.perf_counter(), what
+        if not self.quiet:
+            print(f"stereojax: {what} ...", end="", flush=True)
+
+    def done(self) -> float:
+        secs = time.perf_counter() - self._t0
+        if not self.quiet:
+            print(f" {secs:.1f} s", flush=True)
+        return secs
