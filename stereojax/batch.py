@@ -1,8 +1,20 @@
 """Predicting pairs from files: one pair into a folder, or a batch of pairs into
-``OUT/<frame>/`` with a progress bar, one line per failed pair and ``summary.json``."""
+``OUT/<frame>/`` with a progress bar, one line per failed pair and ``summary.json``.
+
+A batch resumes: a frame folder is complete when its ``frame.json`` (written last) lists files
+that are all there, and it is reused when that record's method, weights, chain settings,
+calibration and input files equal this run's; anything else is computed again (``overwrite``:
+everything). A frame is computed into a hidden folder beside its final one and renamed into
+place, so a killed batch leaves every frame folder complete or absent.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -10,14 +22,65 @@ from pathlib import Path
 
 from .data.io import write_json
 from .errors import StereoError
+from .interrupt import stop_on_signals
 from .outputs import write_prediction
+
+MANIFEST = "frame.json"
+_PARTIAL = ".partial-"
+
+
+def _file_id(path) -> dict:
+    """What identifies an input file's content cheaply: its path, size and modification time."""
+    p = Path(path)
+    st = p.stat()
+    return {"path": str(p.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+_SHA: dict = {}
+
+
+def _sha256(path) -> str | None:
+    if path is None:
+        return None
+    key = str(Path(path).resolve())
+    if key not in _SHA:
+        _SHA[key] = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return _SHA[key]
+
+
+def frame_key_of_run(run) -> dict:
+    """What of a :class:`stereojax.models.Resolved` a result depends on: the method, the weights
+    (by content) and the chain settings."""
+    return {"method": run.method, "weights": str(run.weights) if run.weights else None,
+            "weights_sha256": _sha256(run.weights), "config": run.config.to_dict()}
+
+
+def frame_record(run, calib, ply: bool, left_path, right_path) -> dict:
+    """What a frame's outputs depend on: :func:`frame_key_of_run`, the calibration, the
+    point-cloud option and the two input files."""
+    return {**frame_key_of_run(run),
+            "calib": dataclasses.asdict(calib) if calib is not None else None, "ply": bool(ply),
+            "left": _file_id(left_path), "right": _file_id(right_path)}
+
+
+def is_complete(target: Path, record: dict) -> bool:
+    """Whether ``target`` holds a finished frame made with ``record``'s settings and inputs."""
+    try:
+        stored = json.loads((target / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return False
+    outputs = stored.pop("outputs", None)
+    stored.pop("timings", None)
+    return stored == json.loads(json.dumps(record)) and isinstance(outputs, list) \
+        and all((target / name).is_file() for name in outputs)
 
 
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
-                 phases=None) -> dict:
+                 phases=None, record: bool = False) -> dict:
     """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``.
 
     resolve(width, height) -> :class:`stereojax.models.Resolved` says what runs for this input.
+    record: also write ``frame.json`` (what the frame was made with, and its files) last.
     Returns ``{"disparity", "timings", "written", "run"}``; ``timings`` as
     :meth:`stereojax.pipeline.Predictor.timed`."""
     from .data.datasets import load_pair
@@ -34,57 +97,130 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     write_json(target / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                          "max_disp": cfg.max_disp, "method": cfg.cost.method,
                                          "chosen": run.description})
-    return {"disparity": disp, "timings": timings, "written": written + ["config.json", "timings.json"],
-            "run": run}
+    written += ["config.json", "timings.json"]
+    if record:
+        write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path),
+                                       "outputs": written, "timings": timings})
+    return {"disparity": disp, "timings": timings, "written": written, "run": run}
+
+
+def _predict_into_place(pair, out: Path, resolve, calib, ply) -> dict:
+    """:func:`predict_pair` into a hidden folder, renamed to ``out/<name>`` once complete."""
+    name, left_p, right_p = pair
+    final = out / name
+    staging = out / f".{name}{_PARTIAL}{os.getpid()}"
+    shutil.rmtree(staging, ignore_errors=True)
+    try:
+        result = predict_pair(left_p, right_p, staging, resolve, calib, ply, record=True)
+        if final.exists():
+            old = out / f".{name}.old-{os.getpid()}"
+            final.rename(old)
+            staging.rename(final)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            staging.rename(final)
+        return result
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _reusable(pair, out: Path, resolve, calib, ply) -> bool:
+    """Whether ``out/<name>`` is complete and made with what this run would use."""
+    from .data.datasets import load_pair
+
+    name, left_p, right_p = pair
+    if not (out / name / MANIFEST).is_file():
+        return False
+    try:
+        sample = load_pair(left_p, right_p)
+        run = resolve(sample.left.shape[1], sample.left.shape[0])
+        return is_complete(out / name, frame_record(run, calib, ply, left_p, right_p))
+    except (StereoError, OSError):
+        return False
 
 
 def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = False,
-                  devices: list | None = None) -> dict:
-    """Every ``(name, left, right)`` pair into ``out/<name>/``: one compiled chain per size
-    bucket, a progress bar with frames/s, one line per failed pair (the batch goes on), and
-    ``out/summary.json``, which is also returned."""
+                  devices: list | None = None, overwrite: bool = False) -> dict:
+    """Every ``(name, left, right)`` pair into ``out/<name>/``: frames already complete with
+    this run's settings are skipped (all computed with ``overwrite``), one compiled chain per
+    size bucket, a progress bar with frames/s and the time left, one line per failed pair (the
+    batch goes on), and ``out/summary.json``, which is also returned.
+
+    On SIGINT or SIGTERM the frame in progress is finished or left absent, summary.json is
+    written with what was done, and :class:`stereojax.interrupt.Interrupted` is raised."""
     from tqdm import tqdm
 
     from .devices import map_frames
+    from .interrupt import Interrupted
     from .memory import current_rss_bytes, peak_rss_bytes
 
     devices = list(devices or [])
+    for stale in [*out.glob(f".*{_PARTIAL}*"), *out.glob(".*.old-*")]:          # left by a killed run
+        shutil.rmtree(stale, ignore_errors=True)
+    skipped = [] if overwrite else [p[0] for p in pairs if _reusable(p, out, resolve, calib, ply)]
+    done = set(skipped)
+    todo = [p for p in pairs if p[0] not in done]
 
     def work(pair):
-        name, left_p, right_p = pair
         try:
-            return pair, predict_pair(left_p, right_p, out / name, resolve, calib, ply), None
+            return pair, _predict_into_place(pair, out, resolve, calib, ply), None
         except (StereoError, OSError) as exc:
             return pair, None, exc
 
-    rows, failed, described = [], [], set()
-    with tqdm(total=len(pairs), desc="predict", unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
+    rows, failed, described, interrupted = [], [], set(), None
+    t_start = time.perf_counter()
+    with tqdm(total=len(pairs), initial=len(skipped), desc="predict", unit="frame", file=sys.stderr,
+              dynamic_ncols=True) as bar:
+        if skipped:
+            tqdm.write(f"stereojax predict: {len(skipped)} of {len(pairs)} frames already complete in {out} "
+                       "(skipped; --overwrite computes them again)", file=sys.stderr)
         if len(devices) > 1:
             tqdm.write(f"stereojax predict: {len(devices)} devices, one frame each at a time", file=sys.stderr)
-        t_start = time.perf_counter()
-        for (name, left_p, right_p), result, exc in map_frames(work, pairs, devices):
-            bar.update(1)
-            if exc is not None:
-                failed.append({"frame": name, "left": str(left_p), "right": str(right_p), "error": str(exc)})
-                tqdm.write(f"stereojax predict: error: {name}: {exc}", file=sys.stderr)
-                continue
-            disp, timings, run = result["disparity"], result["timings"], result["run"]
-            if run.description not in described:
-                described.add(run.description)
-                tqdm.write(f"stereojax predict: method: {run.description}", file=sys.stderr)
-            rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
-                         "device": timings["device"],
-                         "bucket": timings["bucket"], "width": int(disp.shape[1]), "height": int(disp.shape[0]),
-                         "rss_mb": current_rss_bytes() / 2 ** 20})
-            bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
+        try:
+            with stop_on_signals():
+                for (name, left_p, right_p), result, exc in map_frames(work, todo, devices):
+                    bar.update(1)
+                    if exc is not None:
+                        failed.append({"frame": name, "left": str(left_p), "right": str(right_p),
+                                       "error": str(exc)})
+                        tqdm.write(f"stereojax predict: error: {name}: {exc}", file=sys.stderr)
+                        continue
+                    disp, timings, run = result["disparity"], result["timings"], result["run"]
+                    if run.description not in described:
+                        described.add(run.description)
+                        tqdm.write(f"stereojax predict: method: {run.description}", file=sys.stderr)
+                    rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
+                                 "device": timings["device"], "bucket": timings["bucket"],
+                                 "width": int(disp.shape[1]), "height": int(disp.shape[0]),
+                                 "rss_mb": current_rss_bytes() / 2 ** 20})
+                    bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
+        except Interrupted as stop:
+            interrupted = stop
     wall = time.perf_counter() - t_start
     compute = sum(r["seconds"] for r in rows)
     n_dev = max(len(devices), 1)
-    summary = {"frames": len(pairs), "ok": len(rows), "failed": failed, "devices": n_dev,
-               "wall_s": wall,
+    summary = {"frames": len(pairs), "ok": len(rows) + len(skipped), "computed": len(rows),
+               "skipped": len(skipped), "failed": failed,
+               "not_done": len(pairs) - len(rows) - len(skipped) - len(failed),
+               "interrupted": interrupted.signal_name if interrupted else None,
+               "devices": n_dev, "wall_s": wall,
                "frames_per_s": len(rows) / wall if wall > 0 else 0.0,
                "frames_per_s_warm": len(rows) * n_dev / compute if compute > 0 else 0.0,
                "compile_s": sum(r["compile_s"] for r in rows), "peak_rss_mb": peak_rss_bytes() / 2 ** 20,
-               "per_frame": rows}
+               "per_frame": rows, "skipped_frames": skipped}
     write_json(out / "summary.json", summary)
+    if interrupted:
+        interrupted.summary = summary
+        raise interrupted
     return summary
+
+
+def summary_line(s: dict, out: Path) -> str:
+    """The line ``stereojax predict`` prints after a batch."""
+    failed = s["failed"]
+    return (f"{s['ok']} of {s['frames']} pairs ({s['computed']} computed, {s['skipped']} already complete) "
+            f"-> {out}/<frame>/ in {s['wall_s']:.1f} s "
+            f"({s['frames_per_s']:.2f} frames/s overall, {s['frames_per_s_warm']:.2f} frames/s "
+            f"after {s['compile_s']:.1f} s compiling), peak RSS {s['peak_rss_mb'] / 1024:.2f} GiB; "
+            f"summary.json" + (f"; {len(failed)} failed: " + ", ".join(f["frame"] for f in failed[:10])
+                               if failed else ""))

@@ -17,7 +17,8 @@ from .data.datasets import DEFAULT_DATA, KITTI_MAX_DISP, parse_frames
 from .data.io import json_default as _json_default
 from .data.pairs import find_pairs
 from .outputs import output_folder
-from .errors import ConfigError, StereoError
+from .errors import StereoError
+from .interrupt import Interrupted
 
 DEFAULT_MAX_DISP = KITTI_MAX_DISP     # 228, the KITTI search range of the data layer
 
@@ -40,19 +41,13 @@ def _resolve(args, width: int = 0, height: int = 0, dataset: str | None = None, 
 def _calibration(args):
     from .data.datasets import Calibration
 
-    if (args.baseline is None) != (args.focal is None):
-        raise ConfigError("--baseline and --focal must be given together")
-    if args.baseline is None:
-        return None
-    if args.baseline <= 0 or args.focal <= 0:
-        raise ConfigError(f"--baseline and --focal must be > 0, got {args.baseline}, {args.focal}")
-    return Calibration(baseline=args.baseline, focal=args.focal, doffs=args.doffs)
+    return Calibration.from_options(args.baseline, args.focal, args.doffs)
 
 
 # ---- commands ----------------------------------------------------------------------------------
 
 def cmd_predict(args) -> int:
-    from .batch import predict_batch, predict_pair
+    from .batch import predict_batch, predict_pair, summary_line
     from .compile_cache import enable
     from .devices import local_devices
     from .progress import Phases
@@ -72,14 +67,9 @@ def cmd_predict(args) -> int:
         print(f"disparity {disp.shape[1]}x{disp.shape[0]} ({r['run'].description}), {timings['seconds']:.2f} s "
               f"(+ {timings['compile_s']:.1f} s compiling) -> {out} ({', '.join(r['written'])})")
         return 0
-    s = predict_batch(pairs, out, resolve, calib, args.ply, devices)
-    failed = s["failed"]
-    print(f"{s['ok']} of {s['frames']} pairs -> {out}/<frame>/ in {s['wall_s']:.1f} s "
-          f"({s['frames_per_s']:.2f} frames/s overall, {s['frames_per_s_warm']:.2f} frames/s "
-          f"after {s['compile_s']:.1f} s compiling), peak RSS {s['peak_rss_mb'] / 1024:.2f} GiB; "
-          f"summary.json" + (f"; {len(failed)} failed: " + ", ".join(f["frame"] for f in failed[:10])
-                             if failed else ""))
-    return 2 if failed else 0
+    s = predict_batch(pairs, out, resolve, calib, args.ply, devices, overwrite=args.overwrite)
+    print(summary_line(s, out))
+    return 2 if s["failed"] else 0
 
 
 def cmd_evaluate(args) -> int:
@@ -97,7 +87,7 @@ def cmd_evaluate(args) -> int:
     if len(devices) > 1:
         print(f"{len(devices)} devices, one frame each at a time", file=sys.stderr)
     evaluate_dataset(items, args.dataset, run, out, gt=args.gt, fill=args.fill,
-                     max_disp=args.max_disp, sgbm=args.sgbm, devices=devices)
+                     max_disp=args.max_disp, sgbm=args.sgbm, devices=devices, overwrite=args.overwrite)
     return 0
 
 
@@ -123,23 +113,13 @@ def cmd_train(args) -> int:
         cfg = TrainConfig.from_file(args.config)
     else:
         cfg = config_from_options(args.preset, args.head, args.loss, args.features,
-                                  _parse_widths(args.widths) if args.widths else None,
+                                  args.widths,
                                   args.distill_weight if args.distill else None, args.augment,
                                   steps=args.steps, seed=args.seed, delta=args.delta, lr=args.lr)
     summary = train_on_dataset(cfg, args.data, args.dataset, args.frames, args.val_frames, out,
                                resume=args.resume, devices=args.devices, init=args.init, distill=args.distill)
     print(json.dumps(summary, indent=2, default=_json_default))
     return 0
-
-
-def _parse_widths(text: str) -> tuple[int, ...]:
-    try:
-        widths = tuple(int(w) for w in text.split(","))
-    except ValueError:
-        raise ConfigError(f"--widths must be comma-separated integers such as 64,32, got {text!r}") from None
-    if not widths or min(widths) < 1:
-        raise ConfigError(f"--widths must be positive integers, got {text!r}")
-    return widths
 
 
 def cmd_bench(args) -> int:
@@ -199,6 +179,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--focal", type=float, help="focal length in pixels (for depth)")
     sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")
     sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs calibration)")
+    sp.add_argument("--overwrite", action="store_true", help="a batch computes every frame again (default: "
+                    "frames already complete in --out with the same method, model, settings and inputs are kept)")
     add_devices(sp)
     add_method(sp)
     sp.set_defaults(func=cmd_predict)
@@ -213,7 +195,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--max-disp", type=int, help="default: 228 for KITTI, ndisp/GT for Middlebury")
     sp.add_argument("--sgbm", action="store_true",
                     help="also score OpenCV StereoSGBM, left-padded and unpadded, in the same run")
-    sp.add_argument("--out", default="out/evaluate", help="output folder")
+    sp.add_argument("--out", default="out/evaluate", help="output folder (an evaluation of the same settings "
+                    "there is continued: frames already scored are taken from OUT/frames/)")
+    sp.add_argument("--overwrite", action="store_true", help="score every frame again")
     add_devices(sp)
     add_method(sp)
     sp.set_defaults(func=cmd_evaluate)
@@ -273,6 +257,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             return args.func(args)
     except StereoError as exc:
         print(f"stereojax {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except Interrupted as exc:
+        done = exc.summary
+        what = f": {done['ok']} of {done['frames']} frames done, summary.json written" if done else ""
+        print(f"stereojax {args.command}: {exc}{what}; run the same command to continue", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print(f"stereojax {args.command}: interrupted", file=sys.stderr)

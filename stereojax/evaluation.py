@@ -12,6 +12,7 @@ disparity, ``(disparity, est_valid)``, or ``(disparity, info)`` with ``info`` a 
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping
@@ -71,7 +72,7 @@ def _load(item):
 
 def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp, *,
                     fill: str = "interpolate", devices: list | None = None, on_frame=None,
-                    progress: str | None = None, total: int | None = None) -> dict:
+                    progress: str | None = None, total: int | None = None, reuse=None) -> dict:
     """Run every method on every frame and score it with :func:`stereojax.metrics.evaluate`.
 
     frames: samples (``.name``, ``.left``, ``.right``, ``.gt``, ``.gt_valid``) or ``(frame_id,
@@ -80,19 +81,26 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
     (see :func:`~stereojax.metrics.evaluate`). devices: spread the frames over these devices
     (:func:`~stereojax.devices.map_frames`). on_frame(row, sample, disparities): called in order
     after each scored frame (e.g. to write its outputs). progress: a tqdm bar with this title on
-    stderr (None: no bar).
+    stderr (None: no bar, with the frames/s and the time left). reuse(frame_id) -> a row of an
+    earlier run, or None: a frame with a row is neither loaded nor computed, and its row is
+    taken as it is (on_frame is not called for it).
 
     Returns ``{"frames": [row], "mean": {method: means}, "missing_gt": [frame ids]}`` where a row
     is ``{"frame", "max_disp", method: {metrics..., "seconds", "warm", timings...}}``. A frame's
     ``seconds`` are warm when the method timed compilation apart (``compile_s``) or when it ran
     a frame of the same size and range before; ``mean[method]["seconds_warm"]`` is the mean over
-    warm frames (NaN if none). Frames without ground truth are listed in ``missing_gt``.
+    warm frames (NaN if none). Frames without ground truth are listed in ``missing_gt``, frames
+    whose row came from ``reuse`` in ``reused``.
     """
     from .devices import map_frames
 
     seen: dict[str, set] = {name: set() for name in methods}
 
     def work(item):
+        frame_id = item[0] if isinstance(item, tuple) else item.name
+        earlier = reuse(frame_id) if reuse is not None else None
+        if earlier is not None:
+            return frame_id, None, earlier, None
         frame_id, sample = _load(item)
         if sample.gt is None:
             return frame_id, sample, None, None
@@ -110,11 +118,15 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
 
         bar = tqdm(total=total if total is not None else _length(frames), desc=progress, unit="frame",
                    file=sys.stderr, dynamic_ncols=True)
-    rows, missing, first = [], [], next(iter(methods))
+    rows, missing, reused, first = [], [], [], next(iter(methods))
     try:
         for frame_id, sample, md, outputs in map_frames(work, frames, devices):
             if bar is not None:
                 bar.update(1)
+            if sample is None:                   # an earlier run's row (md holds it)
+                rows.append(md)
+                reused.append(frame_id)
+                continue
             if outputs is None:
                 missing.append(frame_id)
                 continue
@@ -135,7 +147,8 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
     finally:
         if bar is not None:
             bar.close()
-    return {"frames": rows, "mean": mean_rows(rows, list(methods)) if rows else {}, "missing_gt": missing}
+    return {"frames": rows, "mean": mean_rows(rows, list(methods)) if rows else {}, "missing_gt": missing,
+            "reused": reused}
 
 
 def _length(frames):
@@ -168,33 +181,60 @@ def format_table(mean: Mapping[str, Mapping]) -> str:
 
 
 def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: str = "interpolate",
-                     max_disp: int | None = None, sgbm: bool = False, devices: list | None = None) -> dict:
+                     max_disp: int | None = None, sgbm: bool = False, devices: list | None = None,
+                     overwrite: bool = False) -> dict:
     """``stereojax evaluate``: the chain of ``run`` (:class:`stereojax.models.Resolved`), and
     OpenCV SGBM left-padded and unpadded with ``sgbm``, on the ``(frame_id, load)`` items of a
     dataset (:func:`stereojax.data.datasets.load_dataset`).
-    Writes ``OUT/<frame>_disparity*.png``, ``<frame>_error.png``, ``results.json`` and
-    ``results.md``; prints the table. Frames without ``gt`` ground truth are skipped with a
-    warning (:class:`StereoInputError` when none has it). Returns what results.json holds."""
+
+    Writes ``OUT/<frame>_disparity*.png``, ``<frame>_error.png`` and ``OUT/frames/<frame>.json``
+    (the frame's scores and what made them) after each frame, then ``results.json`` and
+    ``results.md``; prints the table. A frame whose record matches this run (dataset, ground
+    truth, fill, method, weights, chain settings, SGBM) is taken from its record instead of
+    computed again (``overwrite``: every frame is computed), so an interrupted evaluation
+    continues where it stopped and its mean is that of an uninterrupted one. Frames without
+    ``gt`` ground truth are skipped with a warning (:class:`StereoInputError` when none has
+    it). SIGINT/SIGTERM raise :class:`stereojax.interrupt.Interrupted` after the records of the
+    finished frames are written. Returns what results.json holds."""
     from pathlib import Path
 
+    from .batch import frame_key_of_run
     from .data import io
     from .data.datasets import search_range
     from .errors import StereoInputError
+    from .interrupt import stop_on_signals
     from .outputs import color_scale, write_prediction
 
     out = Path(out)
     methods = {"pipeline": chain_method(run.config, run.model())}
     if sgbm:
         methods.update(sgbm=sgbm_method(pad=True), sgbm_unpadded=sgbm_method(pad=False))
+    key = {"dataset": dataset, "gt": gt, "fill": fill, "max_disp": max_disp, "methods": list(methods),
+           **frame_key_of_run(run)}
+    records = out / "frames"
 
     def write(row, sample, disparities):
         disp = disparities["pipeline"]
         write_prediction(out, f"{row['frame']}_", disp, color_max=color_scale(disp, sample.gt, sample.gt_valid))
         io.write_error_map(out / f"{row['frame']}_error.png", disp, sample.gt, sample.gt_valid)
+        io.write_json(records / f"{row['frame']}.json", {"key": key, "row": row})
 
-    result = evaluate_frames(items, methods, lambda s: search_range(dataset, s, max_disp), fill=fill,
-                             devices=devices, on_frame=write, progress=f"evaluate {dataset}")
+    def earlier(frame_id):
+        try:
+            stored = json.loads((records / f"{frame_id}.json").read_text())
+        except (OSError, ValueError):
+            return None
+        complete = all((out / f"{frame_id}_{name}").is_file() for name in ("disparity.png", "error.png"))
+        return stored["row"] if complete and stored.get("key") == json.loads(json.dumps(key)) else None
+
+    with stop_on_signals():
+        result = evaluate_frames(items, methods, lambda s: search_range(dataset, s, max_disp), fill=fill,
+                                 devices=devices, on_frame=write, progress=f"evaluate {dataset}",
+                                 reuse=None if overwrite else earlier)
     per_frame, missing_gt = result["frames"], result["missing_gt"]
+    if result["reused"]:
+        print(f"{len(result['reused'])} of {len(per_frame)} frames from the records of an earlier run in "
+              f"{records} (--overwrite computes them again)", file=sys.stderr)
     if missing_gt:
         names = ", ".join(missing_gt[:5]) + (" ..." if len(missing_gt) > 5 else "")
         msg = f"no {gt} ground truth for {len(missing_gt)} frame(s): {names}"
@@ -202,6 +242,7 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
             raise StereoInputError(msg + "; nothing to evaluate")
         print(f"warning: {msg}; skipped", file=sys.stderr)
     results = {"dataset": dataset, "gt": gt, "fill": fill, "frames": per_frame, "mean": result["mean"],
+               "reused": result["reused"],
                "config": run.with_max_disp(per_frame[0]["max_disp"]).config.to_dict()}
     io.write_json(out / "results.json", results)
     table = format_table(result["mean"])

@@ -455,15 +455,29 @@ def _preview(cfg: TrainConfig, state, sample, rows: int = 64, cols: int = 320, m
 
 
 
+def parse_widths(text: str) -> tuple[int, ...]:
+    """Hidden widths of a dense head from ``--widths`` ("64,32")."""
+    try:
+        widths = tuple(int(w) for w in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--widths must be comma-separated integers such as 64,32, got {text!r}") from None
+    if not widths or min(widths) < 1:
+        raise ConfigError(f"--widths must be positive integers, got {text!r}")
+    return widths
+
+
 def config_from_options(preset: str = "cpu", head: str = "downsize", loss: str | None = None,
-                        features: int | None = None, widths: Sequence[int] | None = None,
+                        features: int | None = None, widths: Sequence[int] | str | None = None,
                         distill_weight: float | None = None, augment: bool = False,
                         **overrides) -> TrainConfig:
     """The TrainConfig of ``stereojax train``'s options: the preset, its network narrowed to
     ``features`` maps and hidden ``widths`` when given, distillation with ``distill_weight``,
-    augmentation, and the plain ``overrides`` (steps, seed, delta, lr) that are not None."""
+    augmentation, and the plain ``overrides`` (steps, seed, delta, lr) that are not None.
+    ``widths`` may be the text of ``--widths`` (:func:`parse_widths`)."""
     from .nets import net_preset
 
+    if isinstance(widths, str):
+        widths = parse_widths(widths)
     over = {k: v for k, v in overrides.items() if v is not None}
     if features or widths:
         net = net_preset(head, features or train_preset(preset, head=head).net.features)

@@ -67,6 +67,19 @@ class Calibration:
         if not math.isfinite(self.doffs):
             raise StereoInputError(f"calibration doffs must be finite, got {self.doffs!r}")
 
+    @classmethod
+    def from_options(cls, baseline: float | None, focal: float | None, doffs: float = 0.0) -> "Calibration | None":
+        """The calibration of ``--baseline/--focal/--doffs`` (None when neither is given)."""
+        from ..errors import ConfigError
+
+        if (baseline is None) != (focal is None):
+            raise ConfigError("--baseline and --focal must be given together")
+        if baseline is None:
+            return None
+        if baseline <= 0 or focal <= 0:
+            raise ConfigError(f"--baseline and --focal must be > 0, got {baseline}, {focal}")
+        return cls(baseline=baseline, focal=focal, doffs=doffs)
+
 
 @dataclass
 class StereoSample:

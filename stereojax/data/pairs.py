@@ -3,6 +3,7 @@ folder, or a text list of pairs; what ``stereojax predict`` takes as its inputs.
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 from ..errors import StereoInputError
@@ -36,11 +37,25 @@ def kitti_pairs(folder: Path) -> list[tuple[str, Path, Path]]:
                            + ", ".join(f"{a}/ + {b}/" for a, b in KITTI_VIEWS) + " inside")
 
 
+def _split_line(line: str) -> list[str]:
+    """The paths of one pair-list line: two tab-separated fields (spaces kept as they are), or
+    two fields as a shell splits them (quotes and backslash escapes; ValueError if unbalanced)."""
+    if "\t" in line:
+        fields = [f.strip() for f in line.split("\t") if f.strip()]
+        if len(fields) == 2:
+            return fields
+    return shlex.split(line, comments=False, posix=True)
+
+
 def list_pairs(path: Path) -> list[tuple[str, Path, Path]]:
-    """Pairs of a text file: one 'LEFT RIGHT' per line (relative to the file's folder; blank
-    lines and lines starting with # are skipped)."""
+    """Pairs of a text file (UTF-8), one ``LEFT RIGHT`` pair per line.
+
+    A path with spaces is quoted as a shell would quote it (``"my left.png" 'my right.png'`` or
+    ``my\\ left.png``), or the two paths are separated by a tab. Relative paths are relative to
+    the list file's folder. Blank lines and lines starting with ``#`` are skipped. A malformed
+    line is refused before anything runs, with its line number."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise StereoInputError(f"cannot read the pair list {path}: {exc}") from None
     pairs, seen = [], {}
@@ -48,9 +63,13 @@ def list_pairs(path: Path) -> list[tuple[str, Path, Path]]:
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        parts = line.split()
+        try:
+            parts = _split_line(line)
+        except ValueError as exc:         # e.g. "No closing quotation"
+            raise StereoInputError(f"{path}, line {n}: {exc} in {line!r}") from None
         if len(parts) != 2:
-            raise StereoInputError(f"{path}, line {n}: expected 'LEFT RIGHT', got {line!r}")
+            raise StereoInputError(f"{path}, line {n}: expected 'LEFT RIGHT' (quote paths with spaces, "
+                                   f"or separate the two by a tab), got {len(parts)} field(s) in {line!r}")
         left, right = (Path(p) if Path(p).is_absolute() else path.parent / p for p in parts)
         name = left.stem
         seen[name] = seen.get(name, 0) + 1

@@ -1,0 +1,205 @@
+"""Long runs a user can trust: a batch prediction killed (SIGKILL) or stopped (SIGTERM) and run
+again computes only what is missing, and ends with the outputs of an uninterrupted run; an
+evaluation continues from its per-frame records with the same mean; pair lists take quoted,
+spaced, tab-separated, non-ASCII and relative paths. Real subprocesses and signals, small
+images, the census chain."""
+
+import json
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stereojax.data import io
+from stereojax.data.pairs import list_pairs
+from stereojax.errors import StereoInputError
+
+from .helpers import fake_kitti, shifted_pair
+from .robustness_helpers import _cli, _subprocess_env
+
+FAST = ["--max-disp", "16", "--method", "census"]
+N_FRAMES = 12
+
+
+def _pairs(folder: Path, n=N_FRAMES, h=96, w=160):
+    for sub in ("left", "right"):
+        (folder / sub).mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        left, right = shifted_pair(3 + i % 4, h=h, w=w, seed=i)
+        io.write_png(folder / "left" / f"f{i:02d}.png", left)
+        io.write_png(folder / "right" / f"f{i:02d}.png", right)
+    return folder / "left", folder / "right"
+
+
+def _cmd(left, right, out, *extra):
+    return [sys.executable, "-m", "stereojax.cli", "predict", str(left), str(right), "--out", str(out), *FAST, *extra]
+
+
+def _complete(out: Path) -> list[str]:
+    return sorted(p.parent.name for p in out.glob("*/frame.json"))
+
+
+def _start_and_wait(cmd, out, env, frames: int):
+    """Start the batch and return (process, frames complete) once at least ``frames`` frames are
+    complete (or the process has ended)."""
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None and len(_complete(out)) < frames:
+        time.sleep(0.01)
+    return proc
+
+
+def _outputs(folder: Path) -> dict:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name in ("disparity.pfm", "disparity.png", "config.json")}
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    base = tmp_path_factory.mktemp("resume")
+    left, right = _pairs(base)
+    env = _subprocess_env(base)
+    full = base / "uninterrupted"
+    proc = subprocess.run(_cmd(left, right, full), env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return {"base": base, "left": left, "right": right, "env": env, "full": full}
+
+
+@pytest.mark.slow
+def test_sigkill_then_the_same_command_computes_only_the_missing_frames(data):
+    out = data["base"] / "killed"
+    proc = _start_and_wait(_cmd(data["left"], data["right"], out), out, data["env"], frames=3)
+    assert proc.poll() is None, "the batch ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    before = _complete(out)
+    assert 3 <= len(before) < N_FRAMES
+    # every frame folder is complete (nothing half-written under a frame's name)
+    assert sorted(p.name for p in out.iterdir() if p.is_dir() and not p.name.startswith(".")) == before
+    stamps = {f: (out / f / "frame.json").stat().st_mtime_ns for f in before}
+    again = subprocess.run(_cmd(data["left"], data["right"], out), env=data["env"], capture_output=True,
+                           text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["skipped"] == len(before) and summary["computed"] == N_FRAMES - len(before)
+    assert sorted(summary["skipped_frames"]) == before
+    assert {f: (out / f / "frame.json").stat().st_mtime_ns for f in before} == stamps      # not rewritten
+    assert f"{len(before)} of {N_FRAMES} frames already complete" in again.stderr
+    assert not list(out.glob(".*"))                                 # the killed frame's staging is gone
+    assert _outputs(out) == _outputs(data["full"])                  # identical to an uninterrupted run
+
+
+@pytest.mark.slow
+def test_sigterm_finishes_or_drops_the_frame_writes_the_summary_and_exits_143(data):
+    out = data["base"] / "terminated"
+    proc = _start_and_wait(_cmd(data["left"], data["right"], out), out, data["env"], frames=2)
+    assert proc.poll() is None, "the batch ended before it could be stopped"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    summary = json.loads((out / "summary.json").read_text())
+    done = _complete(out)
+    assert summary["interrupted"] == "SIGTERM" and summary["computed"] == len(done) < N_FRAMES
+    assert summary["not_done"] == N_FRAMES - len(done)
+    last = err.strip().splitlines()[-1]
+    assert "interrupted by SIGTERM" in last and "run the same command to continue" in last
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == done       # no half-written frame
+    again = subprocess.run(_cmd(data["left"], data["right"], out), env=data["env"], capture_output=True,
+                           text=True, timeout=600)
+    assert again.returncode == 0 and json.loads((out / "summary.json").read_text())["skipped"] == len(done)
+    assert _outputs(out) == _outputs(data["full"])
+
+
+def test_other_settings_are_computed_again_and_overwrite_recomputes_all(tmp_path, capsys):
+    left, right = _pairs(tmp_path, n=3, h=48, w=80)
+    out = tmp_path / "out"
+    argv = ["predict", left, right, "--out", out, *FAST]
+    assert _cli(argv, capsys)[0] == 0
+    assert _cli(argv, capsys)[0] == 0
+    assert json.loads((out / "summary.json").read_text())["skipped"] == 3
+    # another search range: another config, every frame again
+    assert _cli(["predict", left, right, "--out", out, "--max-disp", "24", "--method", "census"], capsys)[0] == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["skipped"] == 0 and s["computed"] == 3
+    assert json.loads((out / "f00" / "config.json").read_text())["max_disp"] == 24
+    # a changed input file: that frame again
+    img = io.read_image(left / "f01.png")
+    io.write_png(left / "f01.png", np.ascontiguousarray(img[:, ::-1]))
+    assert _cli(["predict", left, right, "--out", out, "--max-disp", "24", "--method", "census"], capsys)[0] == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["skipped_frames"] == ["f00", "f02"] and [r["frame"] for r in s["per_frame"]] == ["f01"]
+    # a frame folder with a missing file is incomplete
+    (out / "f02" / "disparity.pfm").unlink()
+    assert _cli(["predict", left, right, "--out", out, "--max-disp", "24", "--method", "census"], capsys)[0] == 0
+    assert [r["frame"] for r in json.loads((out / "summary.json").read_text())["per_frame"]] == ["f02"]
+    assert _cli(["predict", left, right, "--out", out, "--max-disp", "24", "--method", "census", "--overwrite"],
+                capsys)[0] == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["skipped"] == 0 and s["computed"] == 3
+
+
+def test_evaluate_continues_from_its_records_with_the_mean_of_an_uninterrupted_run(tmp_path, capsys):
+    root = tmp_path / "training"
+    fake_kitti(root, n=3)
+    base = ["evaluate", "--data", root, "--dataset", "kitti2015", *FAST]
+    assert _cli(base + ["--out", tmp_path / "whole"], capsys)[0] == 0
+    whole = json.loads((tmp_path / "whole" / "results.json").read_text())
+    part = tmp_path / "part"
+    assert _cli(base + ["--frames", "000000,000001", "--out", part], capsys)[0] == 0     # "stopped" after 2
+    code, _, err = _cli(base + ["--out", part], capsys)
+    assert code == 0 and "2 of 3 frames from the records of an earlier run" in err
+    resumed = json.loads((part / "results.json").read_text())
+    assert resumed["reused"] == ["000000", "000001"]
+    for key in ("bad2", "bad3", "d1", "epe", "n_gt"):
+        assert resumed["mean"]["pipeline"][key] == whole["mean"]["pipeline"][key]
+    code, _, err = _cli(base + ["--out", part, "--overwrite"], capsys)
+    assert code == 0 and json.loads((part / "results.json").read_text())["reused"] == []
+    # another setting: nothing reused
+    _cli(["evaluate", "--data", root, "--dataset", "kitti2015", "--max-disp", "24", "--method", "census",
+          "--out", part], capsys)
+    assert json.loads((part / "results.json").read_text())["reused"] == []
+
+
+def test_pair_list_takes_quoted_spaced_tabbed_non_ascii_and_relative_paths(tmp_path, capsys):
+    folder = tmp_path / "my pairs"
+    (folder / "sub dir").mkdir(parents=True)
+    names = ["left one.png", "right one.png", "gauche é.png", "droite é.png", "l3.png", "r3.png",
+             "l 4.png", "r 4.png"]
+    for i, n in enumerate(names):
+        left, right = shifted_pair(3, h=48, w=80, seed=i // 2)
+        io.write_png(folder / "sub dir" / n, left if i % 2 == 0 else right)
+    absolute = folder / "sub dir" / "l3.png"
+    lst = folder / "pairs.txt"
+    lst.write_text("# left right\n\n"
+                   '"sub dir/left one.png" \'sub dir/right one.png\'\n'
+                   "sub dir/gauche é.png\tsub dir/droite é.png\n"
+                   f"{shlex.quote(str(absolute))} 'sub dir/r3.png'   \n"
+                   "sub\\ dir/l\\ 4.png sub\\ dir/r\\ 4.png\n", encoding="utf-8")
+    pairs = list_pairs(lst)
+    assert [(n, l.name, r.name) for n, l, r in pairs] == [
+        ("left one", "left one.png", "right one.png"), ("gauche é", "gauche é.png", "droite é.png"),
+        ("l3", "l3.png", "r3.png"), ("l 4", "l 4.png", "r 4.png")]
+    assert all(l.is_file() and r.is_file() for _, l, r in pairs)
+    out = tmp_path / "out"
+    code, _, err = _cli(["predict", "--pairs", lst, "--out", out, *FAST], capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["gauche é", "l 4", "l3", "left one"]
+
+
+@pytest.mark.parametrize("line, what", [('"a.png b.png', "No closing quotation"),
+                                         ("a.png b.png c.png", "got 3 field(s)"),
+                                         ("a.png", "got 1 field(s)")])
+def test_a_malformed_pair_list_line_is_refused_up_front_with_its_number(tmp_path, capsys, line, what):
+    lst = tmp_path / "pairs.txt"
+    lst.write_text(f"# header\nx.png y.png\n{line}\n")
+    with pytest.raises(StereoInputError, match=rf"line 3: .*{re.escape(what)}"):
+        list_pairs(lst)
+    out = tmp_path / "out"
+    code, _, err = _cli(["predict", "--pairs", lst, "--out", out, *FAST], capsys)
+    assert code == 2 and "line 3" in err and not (out / "summary.json").exists()
