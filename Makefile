@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate bench train train-middlebury \
-        search-chain middlebury-folds augment-compare compressed train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain middlebury-folds augment-compare compressed confidence train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -95,6 +95,9 @@ train-compact: $(STAMP)  ## the shipped compressed model (kitti2015_compact): to
 	  --preset cpu --features 16 --widths 64,32 --distill kitti2015 --steps 30000 --out runs/kitti2015_compact
 	$(EXP)/search_chain.py --dataset kitti2015 --frames 1,3,5,7,9,11,13,15 --rounds 1 --space local \
 	  --weights runs/kitti2015_compact/checkpoint.msgpack --start kitti2015_compact --tag _compact
+
+confidence: $(STAMP)  ## issue 19: sparsification curves of the confidence map on KITTI 2015 000021-000030 beside oracle and random (~6 min) -> experiments/results/confidence_000021-000030.*
+	$(EXP)/confidence.py --data $(DATA)
 
 augment-compare: $(STAMP)  ## patch augmentation on/off, 2 seeds, KITTI selection fold 16-20 (~25 min) -> experiments/results/augment_compare.*
 	$(EXP)/augment_compare.py --data $(DATA) --steps 1500

@@ -14,6 +14,7 @@ Writes OUT/middlebury_folds.{md,json}. Running time here (2 cores): about 18 min
 """
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -54,11 +55,14 @@ def main():
     ap.add_argument("--out", default=str(ROOT / "experiments" / "results"))
     ap.add_argument("--runs", default=str(ROOT / "runs" / "middlebury_folds"))
     ap.add_argument("--quick", action="store_true", help="tiny smoke test: 2 small scenes, 2 steps, 1 setting")
+    ap.add_argument("--border", default="replicate", choices=["replicate", "neutral"],
+                    help="cost.border of the learned chain (the out-of-view strip; written as middlebury_folds_<border>)")
     args = ap.parse_args()
     folds = [["Tsukuba_2001"], ["Venus_2001"]] if args.quick else FOLDS
     space = SPACE[:1] if args.quick else SPACE
     load = lambda name: load_sample(args.data, "middlebury", name, "occ")  # noqa: E731
     base = stereojax.preset("learned")
+    base = dataclasses.replace(base, cost=dataclasses.replace(base.cost, border=args.border)).validate()
     kitti = load_model(weights_path(args.init))
     init_tag = "" if args.init == "kitti2015" else "_" + Path(args.init).resolve().parent.name
     rows, fold_info = [], []
@@ -109,7 +113,7 @@ def main():
           + "\n".join(f"* fold {f['fold']} (held out {', '.join(f['held_out'])}): settings "
                       f"{f['changes'] or 'the preset'} (searched on {', '.join(f['searched_on'])}: "
                       f"{f['search_start']:.2f} -> {f['search_best']:.2f})" for f in fold_info) + "\n")
-    stem = "middlebury_folds_quick" if args.quick else "middlebury_folds"
+    stem = "middlebury_folds" + ("" if args.border == "replicate" else f"_{args.border}") + ("_quick" if args.quick else "")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / f"{stem}.json", {"steps": cfg.steps, "lr": args.lr, "seed": args.seed, "folds": fold_info,

@@ -53,8 +53,8 @@ def fill(text: str, blocks: dict) -> str:
     """``text`` with the content between ``<!-- name -->`` and ``<!-- /name -->`` replaced by
     ``blocks[name]`` for every name found (a marker without a block is left as it is)."""
     for name, content in blocks.items():
-        pattern = re.compile(rf"(<!-- {re.escape(name)} -->\n).*?(\n<!-- /{re.escape(name)} -->)", re.S)
-        text = pattern.sub(lambda m: m.group(1) + content.strip() + m.group(2), text)
+        pattern = re.compile(rf"(<!-- {re.escape(name)} -->\n)(?:.*?\n)?(<!-- /{re.escape(name)} -->)", re.S)
+        text = pattern.sub(lambda m: m.group(1) + content.strip() + "\n" + m.group(2), text)
     return text
 
 
@@ -91,6 +91,32 @@ def readme_table(results: Path) -> str | None:
     lo, hi = min(sgbm_seconds), max(sgbm_seconds)
     lines.append("| OpenCV StereoSGBM (3-way, left-padded) | " + " | ".join(
         f"{sgbm[k]:.2f}" for k in ("bad2", "bad3", "d1", "epe")) + f" | {lo:.2f}–{hi:.2f} | 1× |")
+    return "\n".join(lines)
+
+
+#: the README's all-pixel table: (evaluate folder, row label); numbers from the files
+ALL_PIXEL_ROWS = [
+    ("evaluate_kitti2015_000001_both", "KITTI 2015 000001 (the one frame with `disp_occ`; a training frame)"),
+    ("evaluate_kitti2012_best", "KITTI 2012 000000 (never trained on)"),
+    ("evaluate_middlebury_best", "Middlebury, 5 scenes with a non-occlusion mask (4 trained on, Motorcycle not)"),
+]
+
+
+def all_pixel_table(results: Path) -> str | None:
+    """The README's table of `best` against SGBM on all ground-truth pixels (None while a file
+    is missing)."""
+    paths = [(results / folder / "results.json", label) for folder, label in ALL_PIXEL_ROWS]
+    if not all(p.is_file() for p, _ in paths):
+        return None
+    lines = ["| frames | `best` > 3 px % | SGBM > 3 px % | `best` D1 % | SGBM D1 % | `best` non-occluded > 3 px % |",
+             "|---|---|---|---|---|---|"]
+    for path, label in paths:
+        mean = json.loads(path.read_text())["mean"]
+        best = mean.get("pipeline (all)", mean.get("pipeline"))
+        sgbm = mean.get("sgbm (all)", mean.get("sgbm"))
+        noc = mean.get("pipeline (noc)")
+        lines.append(f"| {label} | {best['bad3']:.2f} | {sgbm['bad3']:.2f} | {best['d1']:.2f} | {sgbm['d1']:.2f} | "
+                     + (f"{noc['bad3']:.2f}" if noc else "n/a") + " |")
     return "\n".join(lines)
 
 
@@ -151,7 +177,8 @@ def main():
     root = Path(args.root)
     docs = {name: doc_table((results / f"{name}.md").read_text()) for name in DOC_TABLES
             if (results / f"{name}.md").is_file()}
-    readme = {"results_table": readme_table(results), "speed_table": speed_table(results)}
+    readme = {"results_table": readme_table(results), "speed_table": speed_table(results),
+              "all_pixel_table": all_pixel_table(results)}
     for path, blocks in ((root / "docs" / "results.md", docs), (root / "README.md", readme)):
         print(f"-> {path}" + (" (tables filled)" if fill_file(path, blocks) else " (tables up to date)"))
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from .data.io import write_json
 from .errors import StereoError
 from .interrupt import stop_on_signals
-from .outputs import write_prediction
+from .outputs import blank_unconfident, write_confidence, write_prediction
 
 MANIFEST = "frame.json"
 _PARTIAL = ".partial-"
@@ -55,11 +55,12 @@ def frame_key_of_run(run) -> dict:
             "weights_sha256": _sha256(run.weights), "config": run.config.to_dict()}
 
 
-def frame_record(run, calib, ply: bool, left_path, right_path) -> dict:
+def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: float = 0.0) -> dict:
     """What a frame's outputs depend on: :func:`frame_key_of_run`, the calibration, the
-    point-cloud option and the two input files."""
+    point-cloud option, the confidence threshold and the two input files."""
     return {**frame_key_of_run(run),
             "calib": dataclasses.asdict(calib) if calib is not None else None, "ply": bool(ply),
+            "min_confidence": float(min_confidence),
             "left": _file_id(left_path), "right": _file_id(right_path)}
 
 
@@ -76,12 +77,14 @@ def is_complete(target: Path, record: dict) -> bool:
 
 
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
-                 phases=None, record: bool = False) -> dict:
-    """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``.
+                 phases=None, record: bool = False, min_confidence: float = 0.0) -> dict:
+    """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``,
+    with its confidence map (``confidence.png``, ``confidence.npy``); pixels whose confidence
+    is below ``min_confidence`` have no disparity and no depth (0 in the PNGs).
 
     resolve(width, height) -> :class:`stereojax.models.Resolved` says what runs for this input.
     record: also write ``frame.json`` (what the frame was made with, and its files) last.
-    Returns ``{"disparity", "timings", "written", "run"}``; ``timings`` as
+    Returns ``{"disparity", "confidence", "timings", "written", "run"}``; ``timings`` as
     :meth:`stereojax.pipeline.Predictor.timed`."""
     from .data.datasets import load_pair
     from .devices import current_device
@@ -90,28 +93,31 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     sample = load_pair(left_path, right_path)
     run = resolve(sample.left.shape[1], sample.left.shape[0])
     cfg = run.config
-    disp, timings = Predictor(cfg, run.model(), current_device()).timed(sample.left, sample.right, phases)
+    (disp, conf), timings = Predictor(cfg, run.model(), current_device(), confidence=True).timed(
+        sample.left, sample.right, phases)
+    disp = blank_unconfident(disp, conf, min_confidence)
     target.mkdir(parents=True, exist_ok=True)
-    written = write_prediction(target, "", disp, calib, sample.left, ply=ply)
+    written = write_prediction(target, "", disp, calib, sample.left, ply=ply) + write_confidence(target, "", conf)
     write_json(target / "config.json", cfg.to_dict())
     write_json(target / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                          "max_disp": cfg.max_disp, "method": cfg.cost.method,
                                          "chosen": run.description})
     written += ["config.json", "timings.json"]
     if record:
-        write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path),
+        write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence),
                                        "outputs": written, "timings": timings})
-    return {"disparity": disp, "timings": timings, "written": written, "run": run}
+    return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run}
 
 
-def _predict_into_place(pair, out: Path, resolve, calib, ply) -> dict:
+def _predict_into_place(pair, out: Path, resolve, calib, ply, min_confidence) -> dict:
     """:func:`predict_pair` into a hidden folder, renamed to ``out/<name>`` once complete."""
     name, left_p, right_p = pair
     final = out / name
     staging = out / f".{name}{_PARTIAL}{os.getpid()}"
     shutil.rmtree(staging, ignore_errors=True)
     try:
-        result = predict_pair(left_p, right_p, staging, resolve, calib, ply, record=True)
+        result = predict_pair(left_p, right_p, staging, resolve, calib, ply, record=True,
+                              min_confidence=min_confidence)
         if final.exists():
             old = out / f".{name}.old-{os.getpid()}"
             final.rename(old)
@@ -124,7 +130,7 @@ def _predict_into_place(pair, out: Path, resolve, calib, ply) -> dict:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _reusable(pair, out: Path, resolve, calib, ply) -> bool:
+def _reusable(pair, out: Path, resolve, calib, ply, min_confidence) -> bool:
     """Whether ``out/<name>`` is complete and made with what this run would use."""
     from .data.datasets import load_pair
 
@@ -134,13 +140,13 @@ def _reusable(pair, out: Path, resolve, calib, ply) -> bool:
     try:
         sample = load_pair(left_p, right_p)
         run = resolve(sample.left.shape[1], sample.left.shape[0])
-        return is_complete(out / name, frame_record(run, calib, ply, left_p, right_p))
+        return is_complete(out / name, frame_record(run, calib, ply, left_p, right_p, min_confidence))
     except (StereoError, OSError):
         return False
 
 
 def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = False,
-                  devices: list | None = None, overwrite: bool = False) -> dict:
+                  devices: list | None = None, overwrite: bool = False, min_confidence: float = 0.0) -> dict:
     """Every ``(name, left, right)`` pair into ``out/<name>/``: frames already complete with
     this run's settings are skipped (all computed with ``overwrite``), one compiled chain per
     size bucket, a progress bar with frames/s and the time left, one line per failed pair (the
@@ -157,13 +163,13 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     devices = list(devices or [])
     for stale in [*out.glob(f".*{_PARTIAL}*"), *out.glob(".*.old-*")]:          # left by a killed run
         shutil.rmtree(stale, ignore_errors=True)
-    skipped = [] if overwrite else [p[0] for p in pairs if _reusable(p, out, resolve, calib, ply)]
+    skipped = [] if overwrite else [p[0] for p in pairs if _reusable(p, out, resolve, calib, ply, min_confidence)]
     done = set(skipped)
     todo = [p for p in pairs if p[0] not in done]
 
     def work(pair):
         try:
-            return pair, _predict_into_place(pair, out, resolve, calib, ply), None
+            return pair, _predict_into_place(pair, out, resolve, calib, ply, min_confidence), None
         except (StereoError, OSError) as exc:
             return pair, None, exc
 

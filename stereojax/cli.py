@@ -62,12 +62,13 @@ def cmd_predict(args) -> int:
         return _resolve(args, w, h)
     if not batch:
         _, left_p, right_p = pairs[0]
-        r = predict_pair(left_p, right_p, out, resolve, calib, args.ply, Phases())
+        r = predict_pair(left_p, right_p, out, resolve, calib, args.ply, Phases(), min_confidence=args.min_confidence)
         disp, timings = r["disparity"], r["timings"]
         print(f"disparity {disp.shape[1]}x{disp.shape[0]} ({r['run'].description}), {timings['seconds']:.2f} s "
               f"(+ {timings['compile_s']:.1f} s compiling) -> {out} ({', '.join(r['written'])})")
         return 0
-    s = predict_batch(pairs, out, resolve, calib, args.ply, devices, overwrite=args.overwrite)
+    s = predict_batch(pairs, out, resolve, calib, args.ply, devices, overwrite=args.overwrite,
+                      min_confidence=args.min_confidence)
     print(summary_line(s, out))
     return 2 if s["failed"] else 0
 
@@ -80,7 +81,8 @@ def cmd_evaluate(args) -> int:
 
     out = output_folder(args.out)
     enable()
-    items = load_dataset(args.data, args.dataset, frames=parse_frames(args.frames), gt=args.gt)
+    items = load_dataset(args.data, args.dataset, frames=parse_frames(args.frames),
+                         gt="occ" if args.gt == "both" else args.gt)
     run = _resolve(args, 0, 0, args.dataset)
     print(f"method: {run.description}", file=sys.stderr)
     devices = local_devices(args.devices)
@@ -127,6 +129,16 @@ def cmd_bench(args) -> int:
 
     run_bench(Path(args.out), repeats=args.repeats, max_disp=args.max_disp, data=args.data)
     return 0
+
+
+def _unit(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
+    return value
 
 
 # ---- entry point -------------------------------------------------------------------------------
@@ -179,6 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--focal", type=float, help="focal length in pixels (for depth)")
     sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")
     sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs calibration)")
+    sp.add_argument("--min-confidence", type=_unit, default=0.0, metavar="T", help="no disparity or depth "
+                    "(0 in the PNGs) where the confidence (confidence.png) is below T in [0, 1] (default 0: all)")
     sp.add_argument("--overwrite", action="store_true", help="a batch computes every frame again (default: "
                     "frames already complete in --out with the same method, model, settings and inputs are kept)")
     add_devices(sp)
@@ -189,7 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data/kitti2015/training)")
     sp.add_argument("--dataset", required=True, choices=["kitti2015", "kitti2012", "middlebury"])
     sp.add_argument("--frames", help="e.g. 000021-000030 or 21,22 (default: all)")
-    sp.add_argument("--gt", default="noc", choices=["noc", "occ"], help="ground truth (default noc)")
+    sp.add_argument("--gt", default="noc", choices=["noc", "occ", "both"], help="ground truth: non-occluded, "
+                    "all pixels (occ), or both scored apart (default noc)")
     sp.add_argument("--fill", default="interpolate", choices=["interpolate", "error"],
                     help="pixels without estimate: KITTI background interpolation, or count as errors")
     sp.add_argument("--max-disp", type=int, help="default: 228 for KITTI, ndisp/GT for Middlebury")

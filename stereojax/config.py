@@ -20,6 +20,9 @@ from .errors import ConfigError
 COST_METHODS = ("census", "sad", "learned")
 
 
+BORDERS = ("replicate", "worst", "neutral")
+
+
 @dataclass(frozen=True)
 class CostConfig:
     """Classical matching cost.
@@ -29,7 +32,10 @@ class CostConfig:
     census_radius: (ry, rx) half-sizes of the census window, e.g. (3, 4) is 7x9.
     sad_radius: half-size of the square SAD window.
     border: matches that leave the image (x - d < 0): "replicate" compares with the repeated
-      first column of the other image, "worst" gives them the worst cost (see cost.py).
+      first column of the other image, "worst" gives them the worst cost (see cost.py),
+      "neutral" gives them halfway between the pixel's best and mean in-view cost, so that
+      aggregation and SGM carry disparities in from the rest of the image (any cost method,
+      :func:`stereojax.cost.neutral_border`).
     rows_per_tile: image rows per tile of the learned dense head (bounds its memory).
     candidates: learned dense head only: 0 = exact (every disparity); K > 0 = PRUNED mode
       (not exact; entries the head does not see get cost 1), see ``unsure_share``.
@@ -61,8 +67,8 @@ class CostConfig:
         if ry < 1 or rx < 1 or (2 * ry + 1) * (2 * rx + 1) - 1 > 96:
             raise ConfigError(
                 f"cost.census_radius must be >= 1 with at most 96 census bits, got {self.census_radius}")
-        if self.border not in ("replicate", "worst"):
-            raise ConfigError(f"cost.border must be 'replicate' or 'worst', got {self.border!r}")
+        if self.border not in BORDERS:
+            raise ConfigError(f"cost.border must be one of {BORDERS}, got {self.border!r}")
         if self.rows_per_tile < 1 or self.candidates < 0:
             raise ConfigError(f"cost.rows_per_tile must be >= 1 and cost.candidates >= 0, got "
                               f"{self.rows_per_tile}, {self.candidates}")

@@ -24,6 +24,22 @@ from . import metrics
 COLUMNS = ["bad2", "bad3", "bad4", "bad5", "d1", "epe", "density", "seconds_warm"]
 LABELS = {"pipeline": "stereojax pipeline", "sgbm": "OpenCV SGBM, left-padded",
           "sgbm_unpadded": "OpenCV SGBM, unpadded"}
+#: the regions a frame can be scored on (``regions`` of :func:`evaluate_frames`)
+REGIONS = {"noc": "non-occluded", "all": "all pixels"}
+
+
+def region_key(method: str, region: str) -> str:
+    """The row key of a method scored on one region, e.g. "pipeline (all)"."""
+    return f"{method} ({region})"
+
+
+def _masks(sample, regions) -> dict | None:
+    """region -> ground-truth mask of the sample (None: a region's ground truth is missing)."""
+    if regions is None:
+        return {None: sample.gt_valid}
+    masks = {"noc": sample.gt_noc_valid, "all": sample.gt_valid}
+    out = {r: masks[r] for r in regions}
+    return None if any(m is None for m in out.values()) else out
 
 
 def chain_method(config, model=None, phases=None) -> Callable:
@@ -72,7 +88,8 @@ def _load(item):
 
 def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp, *,
                     fill: str = "interpolate", devices: list | None = None, on_frame=None,
-                    progress: str | None = None, total: int | None = None, reuse=None) -> dict:
+                    progress: str | None = None, total: int | None = None, reuse=None,
+                    regions: tuple | None = None) -> dict:
     """Run every method on every frame and score it with :func:`stereojax.metrics.evaluate`.
 
     frames: samples (``.name``, ``.left``, ``.right``, ``.gt``, ``.gt_valid``) or ``(frame_id,
@@ -83,7 +100,10 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
     after each scored frame (e.g. to write its outputs). progress: a tqdm bar with this title on
     stderr (None: no bar, with the frames/s and the time left). reuse(frame_id) -> a row of an
     earlier run, or None: a frame with a row is neither loaded nor computed, and its row is
-    taken as it is (on_frame is not called for it).
+    taken as it is (on_frame is not called for it). regions: None scores each frame on its
+    ``gt_valid``; ("noc", "all") scores the non-occluded (``gt_noc_valid``) and all ground-truth
+    pixels (``gt_valid``) apart, under the keys ``region_key(method, region)``, e.g.
+    "pipeline (noc)"; a frame without either is listed in ``missing_gt``.
 
     Returns ``{"frames": [row], "mean": {method: means}, "missing_gt": [frame ids]}`` where a row
     is ``{"frame", "max_disp", method: {metrics..., "seconds", "warm", timings...}}``. A frame's
@@ -102,7 +122,7 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
         if earlier is not None:
             return frame_id, None, earlier, None
         frame_id, sample = _load(item)
-        if sample.gt is None:
+        if sample.gt is None or _masks(sample, regions) is None:
             return frame_id, sample, None, None
         md = max_disp(sample) if callable(max_disp) else int(max_disp)
         outputs = {}
@@ -118,7 +138,8 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
 
         bar = tqdm(total=total if total is not None else _length(frames), desc=progress, unit="frame",
                    file=sys.stderr, dynamic_ncols=True)
-    rows, missing, reused, first = [], [], [], next(iter(methods))
+    keys = list(methods) if regions is None else [region_key(m, r) for m in methods for r in regions]
+    rows, missing, reused, first = [], [], [], keys[0]
     try:
         for frame_id, sample, md, outputs in map_frames(work, frames, devices):
             if bar is not None:
@@ -136,8 +157,10 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
                 key = (sample.left.shape, md)
                 warm = "compile_s" in info or key in seen[name]
                 seen[name].add(key)
-                scores = metrics.evaluate(disp, sample.gt, sample.gt_valid, est_valid=est_valid, fill=fill)
-                row[name] = {**scores, "seconds": info.pop("seconds", secs), "warm": warm, **info}
+                timing = {"seconds": info.pop("seconds", secs), "warm": warm, **info}
+                for region, mask in _masks(sample, regions).items():
+                    scores = metrics.evaluate(disp, sample.gt, mask, est_valid=est_valid, fill=fill)
+                    row[name if region is None else region_key(name, region)] = {**scores, **timing}
                 disparities[name] = disp
             rows.append(row)
             if on_frame is not None:
@@ -147,7 +170,7 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
     finally:
         if bar is not None:
             bar.close()
-    return {"frames": rows, "mean": mean_rows(rows, list(methods)) if rows else {}, "missing_gt": missing,
+    return {"frames": rows, "mean": mean_rows(rows, keys) if rows else {}, "missing_gt": missing,
             "reused": reused}
 
 
@@ -169,6 +192,16 @@ def mean_rows(rows: list[dict], methods: list[str]) -> dict:
     return mean
 
 
+def _label(key: str) -> str:
+    """Table label of a row key: "pipeline" or "pipeline (all)" -> "stereojax pipeline, all pixels"."""
+    for region, text in REGIONS.items():
+        suffix = f" ({region})"
+        if key.endswith(suffix):
+            base = key[:-len(suffix)]
+            return f"{LABELS.get(base, base)}, {text}"
+    return LABELS.get(key, key)
+
+
 def format_table(mean: Mapping[str, Mapping]) -> str:
     """The means of :func:`evaluate_frames` as a markdown table, one row per method."""
     head = ("| method | >2 px % | >3 px % | >4 px % | >5 px % | D1 % | EPE px | density % "
@@ -176,7 +209,7 @@ def format_table(mean: Mapping[str, Mapping]) -> str:
     lines = [head, "|" + "---|" * (len(COLUMNS) + 1)]
     for name, m in mean.items():
         cells = ["n/a" if np.isnan(m[c]) else f"{m[c]:.2f}" for c in COLUMNS]
-        lines.append(f"| {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {_label(name)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -230,14 +263,16 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
     with stop_on_signals():
         result = evaluate_frames(items, methods, lambda s: search_range(dataset, s, max_disp), fill=fill,
                                  devices=devices, on_frame=write, progress=f"evaluate {dataset}",
-                                 reuse=None if overwrite else earlier)
+                                 reuse=None if overwrite else earlier,
+                                 regions=("noc", "all") if gt == "both" else None)
     per_frame, missing_gt = result["frames"], result["missing_gt"]
     if result["reused"]:
         print(f"{len(result['reused'])} of {len(per_frame)} frames from the records of an earlier run in "
               f"{records} (--overwrite computes them again)", file=sys.stderr)
     if missing_gt:
         names = ", ".join(missing_gt[:5]) + (" ..." if len(missing_gt) > 5 else "")
-        msg = f"no {gt} ground truth for {len(missing_gt)} frame(s): {names}"
+        what = "non-occluded and all-pixel" if gt == "both" else gt
+        msg = f"no {what} ground truth for {len(missing_gt)} frame(s): {names}"
         if not per_frame:
             raise StereoInputError(msg + "; nothing to evaluate")
         print(f"warning: {msg}; skipped", file=sys.stderr)

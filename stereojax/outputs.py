@@ -28,11 +28,32 @@ def color_scale(disp, gt=None, gt_valid=None) -> float:
     the 99.5th percentile of the estimate (so a few outliers do not wash out the picture)."""
     if gt is not None and gt_valid is not None and gt_valid.any():
         return float(gt[gt_valid].max())
-    return max(float(np.percentile(disp, 99.5)), 1.0)
+    finite = np.asarray(disp)[np.isfinite(disp)]
+    return max(float(np.percentile(finite, 99.5)), 1.0) if finite.size else 1.0
+
+
+def blank_unconfident(disp, confidence, threshold: float):
+    """The disparity with every pixel whose confidence is below ``threshold`` set to +inf (no
+    estimate: 0 in KITTI PNGs and depth, inf in PFM, as Middlebury marks unknown pixels)."""
+    if not threshold:
+        return disp
+    return np.where(np.asarray(confidence) >= threshold, disp, np.inf).astype(np.float32)
+
+
+def write_confidence(out: Path, stem: str, confidence) -> list[str]:
+    """``confidence.npy`` (float32 in [0, 1]) and ``confidence.png`` (grey, 255 = 1)."""
+    from .data import io
+
+    conf = np.clip(np.asarray(confidence, np.float32), 0.0, 1.0)
+    io.write_png(out / f"{stem}confidence.png", np.round(conf * 255).astype(np.uint8))
+    with io.atomic_output(out / f"{stem}confidence.npy") as tmp:
+        np.save(tmp, conf)
+    return [f"{stem}confidence.png", f"{stem}confidence.npy"]
 
 
 def write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=False, color_max=None):
-    """Write disparity (KITTI png + colour png) and depth files; returns the written names."""
+    """Write disparity (KITTI png + colour png) and depth files; returns the written names.
+    Pixels without an estimate (NaN, inf, negative) are 0 in the PNGs and the depth."""
     from .data import io
     from . import depth as depth_mod
 

@@ -166,6 +166,8 @@ def chain_from_volume(vol: jax.Array, left: jax.Array, right: jax.Array, config:
     -> sub-pixel -> median -> bilateral, on the left-view volume ``f32[H, W, D]``."""
     d = config.max_disp
     mask = real_pixels(left.shape, valid)
+    if config.cost.border == "neutral":
+        vol = cost_mod.neutral_border(vol)
     c_cbca, c_sgm, c_final = _view_chain(vol, left, right, config, "left", valid)
     disp_wta = refine.wta(c_final)
     out = {"disp_wta": disp_wta}
@@ -185,11 +187,14 @@ def chain_from_volume(vol: jax.Array, left: jax.Array, right: jax.Array, config:
                 vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
             c_right = _view_chain(vol_r, right, left, config, "right", valid)[2]
         disp_right = refine.wta(c_right)
+        out["confidence"] = refine.confidence(c_final, disp_wta, disp_right, config.refine.lr_tolerance)
         labels = refine.lr_check(disp, disp_right.astype(jnp.float32), d, config.refine.lr_tolerance)
         if mask is not None:    # padding never serves as a source of the filling
             labels = jnp.where(mask, labels, refine.MISMATCH)
         disp = refine.fill_disparity(disp, labels)
         out.update(disp_right=disp_right, labels=labels, disp_filled=disp)
+    if "confidence" not in out:
+        out["confidence"] = refine.confidence(c_final, disp_wta, None)
     if config.refine.subpixel:
         disp = refine.subpixel(c_final, disp)
         out["disp_subpixel"] = disp
@@ -213,15 +218,21 @@ def disparity_grey(left: jax.Array, right: jax.Array, config: StereoConfig, vari
     return _chain(left, right, config, variables, net, keep=False)["disparity"]
 
 
-@functools.partial(jax.jit, static_argnames=("config", "net"))
+def _result(out: dict, confidence: bool):
+    """The disparity, or (disparity, confidence) when asked for."""
+    return (out["disparity"], out["confidence"]) if confidence else out["disparity"]
+
+
+@functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
 def disparity_padded(left: jax.Array, right: jax.Array, valid: jax.Array, config: StereoConfig,
-                     variables=None, net=None) -> jax.Array:
+                     variables=None, net=None, confidence: bool = False) -> jax.Array:
     """:func:`disparity_grey` on a pair padded (right and bottom) to its size bucket.
 
     valid: ``i32[2]``, the real (rows, columns); it is an argument, not a static value, so every
     frame of one bucket runs the same compiled program. Crop the result to ``[:rows, :cols]``.
+    confidence: also return the confidence map (:func:`stereojax.refine.confidence`).
     """
-    return _chain(left, right, config, variables, net, keep=False, valid=valid)["disparity"]
+    return _result(_chain(left, right, config, variables, net, keep=False, valid=valid), confidence)
 
 
 def _split_learned(config: StereoConfig, net) -> bool:
@@ -243,14 +254,15 @@ def learned_front(left, right, valid, config: StereoConfig, variables=None, net=
     return fl, fr, rank_candidates(candidate_volume(left, right, config, valid), config)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "net"))
-def learned_back(left, right, valid, fl, fr, ranked, config: StereoConfig, variables=None, net=None):
+@functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
+def learned_back(left, right, valid, fl, fr, ranked, config: StereoConfig, variables=None, net=None,
+                 confidence: bool = False):
     """Second program of the pruned learned chain: the head at the candidates, then CBCA, SGM
     and refinement; the disparity ``f32[H, W]``."""
     from .learned_cost import ranked_dense_cost
 
     vol = ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid)
-    return chain_from_volume(vol, left, right, config, False, valid)["disparity"]
+    return _result(chain_from_volume(vol, left, right, config, False, valid), confidence)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
@@ -265,11 +277,11 @@ def _volume_padded(left, right, valid, config: StereoConfig, variables=None, net
     return ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid)
 
 
-@functools.partial(jax.jit, static_argnames=("config",))
-def disparity_from_volume(vol, left, right, valid, config: StereoConfig):
+@functools.partial(jax.jit, static_argnames=("config", "confidence"))
+def disparity_from_volume(vol, left, right, valid, config: StereoConfig, confidence: bool = False):
     """Everything after the matching cost (:func:`chain_from_volume`) on a padded pair; the
-    disparity ``f32[H, W]`` of the bucket (crop it to ``valid``)."""
-    return chain_from_volume(vol, left, right, config, False, valid)["disparity"]
+    disparity ``f32[H, W]`` of the bucket (crop it to ``valid``), and its confidence when asked."""
+    return _result(chain_from_volume(vol, left, right, config, False, valid), confidence)
 
 
 @dataclass(frozen=True)
@@ -299,9 +311,12 @@ class CompiledChain:
     back exactly.
     """
 
-    def __init__(self, shape: tuple[int, int], config: StereoConfig, net=None, variables=None, device=None):
-        """variables: the variables (or arrays of their shapes) the chain will be called with."""
+    def __init__(self, shape: tuple[int, int], config: StereoConfig, net=None, variables=None, device=None,
+                 confidence: bool = False):
+        """variables: the variables (or arrays of their shapes) the chain will be called with.
+        confidence: the chain returns (disparity, confidence)."""
         self.shape, self.config, self.net, self.device = shape, config, net, device
+        self.confidence = confidence
         sharding = None
         if device is not None:
             from jax.sharding import SingleDeviceSharding
@@ -319,9 +334,10 @@ class CompiledChain:
             if sharding is not None:
                 fl, fr, ranked = (jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
                                   for x in (fl, fr, ranked))
-            self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, config, var_spec, net).compile()
+            self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, config, var_spec, net,
+                                            confidence).compile()
         else:
-            self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net).compile()
+            self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net, confidence).compile()
 
     def __call__(self, left: np.ndarray, right: np.ndarray, variables=None) -> np.ndarray:
         """Disparity ``f32[H, W]`` of a grey pair in the bucket; variables: the network's, on
@@ -336,6 +352,8 @@ class CompiledChain:
             out = self._back(lp, rp, valid, fl, fr, ranked, variables)
         else:
             out = self._compiled(lp, rp, valid, variables)
+        if self.confidence:
+            return np.asarray(out[0])[:h, :w], np.asarray(out[1])[:h, :w]
         return np.asarray(out)[:h, :w]
 
 
@@ -355,18 +373,18 @@ def _variable_shapes(variables):
 
 
 def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, variables=None,
-                   device=None) -> tuple[CompiledChain, bool]:
+                   device=None, confidence: bool = False) -> tuple[CompiledChain, bool]:
     """(the :class:`CompiledChain` of a bucket shape, config, architecture and device, whether it
     was compiled now); ``variables`` give the shapes only. Safe to call from the worker threads
     of :func:`stereojax.devices.map_frames`. Most callers want :class:`Predictor`."""
-    key = (tuple(shape), config, net, device, _variable_shapes(variables))
+    key = (tuple(shape), config, net, device, _variable_shapes(variables), confidence)
     with _COMPILED_LOCK:
         fresh = key not in _COMPILED
         if fresh:
             mine = [k for k in _COMPILED if k[3] == device]
             for old in mine[:max(0, len(mine) - _KEEP_PER_DEVICE + 1)]:
                 del _COMPILED[old]
-            _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device)
+            _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device, confidence)
         else:   # the most recently used last
             _COMPILED[key] = _COMPILED.pop(key)
         return _COMPILED[key], fresh
@@ -382,12 +400,18 @@ class Predictor:
         predict = Predictor(config, model)
         disp = predict(left, right)               # f32[H, W]
         inter = predict.stages(left, right)       # every intermediate result
+        disp, conf = Predictor(config, model, confidence=True)(left, right)
 
-    The model's variables are put on the device once, here, and passed to every run.
+    ``confidence=True``: every call returns (disparity, confidence), the confidence a per-pixel
+    value in [0, 1] from the cost margin and the left-right agreement
+    (:func:`stereojax.refine.confidence`). The model's variables are put on the device once,
+    here, and passed to every run.
     """
 
-    def __init__(self, config: StereoConfig | None = None, model=None, device=None, memory_limit_gb=None):
+    def __init__(self, config: StereoConfig | None = None, model=None, device=None, memory_limit_gb=None,
+                 confidence: bool = False):
         self.config = (config or StereoConfig()).validate()
+        self.confidence = bool(confidence)
         variables, self.net = _model_args(self.config, model)
         self.model, self.device, self.memory_limit_gb = model, device, memory_limit_gb
         if variables is not None and device is not None:
@@ -401,7 +425,8 @@ class Predictor:
     def _key(self, height: int, width: int):
         from .compile_cache import bucket_shape
 
-        return bucket_shape(height, width), self.config, self.net, self.device, _variable_shapes(self.variables)
+        return (bucket_shape(height, width), self.config, self.net, self.device, _variable_shapes(self.variables),
+                self.confidence)
 
     def is_compiled(self, height: int, width: int) -> bool:
         """Whether the chain for a ``height x width`` pair is compiled in this process already."""
@@ -409,8 +434,8 @@ class Predictor:
 
     def compiled(self, height: int, width: int) -> tuple[CompiledChain, bool]:
         """(the compiled chain for a ``height x width`` pair, whether it was compiled now)."""
-        shape, config, net, device, _ = self._key(height, width)
-        return compiled_chain(shape, config, net, self.variables, device)
+        shape, config, net, device, _, confidence = self._key(height, width)
+        return compiled_chain(shape, config, net, self.variables, device, confidence)
 
     def run(self, gl: np.ndarray, gr: np.ndarray) -> np.ndarray:
         """The chain on grey images already checked by :meth:`prepare`."""
@@ -436,8 +461,12 @@ class Predictor:
         """The disparity ``f32[H, W]`` of a pair from its :meth:`volume`, with this predictor's
         aggregation, SGM and refinement settings (the cost settings are the volume's). Each new
         setting compiles a program; ``disparity_from_volume.clear_cache()`` frees them."""
-        disp = disparity_from_volume(volume.cost, volume.left, volume.right, volume.valid, self.config)
-        return np.asarray(disp)[:volume.valid[0], :volume.valid[1]]
+        out = disparity_from_volume(volume.cost, volume.left, volume.right, volume.valid, self.config,
+                                    self.confidence)
+        h, w = volume.valid
+        if self.confidence:
+            return np.asarray(out[0])[:h, :w], np.asarray(out[1])[:h, :w]
+        return np.asarray(out)[:h, :w]
 
     def timed(self, left, right, phases=None) -> tuple[np.ndarray, dict]:
         """(disparity, timings) of a pair, compilation timed apart: ``timings`` has ``seconds``
@@ -490,7 +519,7 @@ def _model_args(config: StereoConfig, params):
 
 
 def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None,
-              memory_limit_gb=None, bucket: bool = True) -> np.ndarray:
+              memory_limit_gb=None, bucket: bool = True, confidence: bool = False) -> np.ndarray:
     """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
 
     left, right: ``[H, W]`` or ``[H, W, 3]`` arrays (uint8, uint16 or float). config: a
@@ -501,12 +530,13 @@ def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=
     :mod:`stereojax.memory`). bucket: pad the pair to its size bucket
     (:func:`stereojax.compile_cache.bucket_shape`) so that nearby sizes share one compiled
     program, and crop back (the result equals the unpadded one away from the padding); False
-    compiles for the exact size. Raises :class:`StereoInputError` / :class:`ConfigError` on
+    compiles for the exact size. confidence: return (disparity, confidence ``f32[H, W]`` in
+    [0, 1]), see :class:`Predictor`. Raises :class:`StereoInputError` / :class:`ConfigError` on
     bad input and :class:`MemoryBudgetError` before allocating a chain that would not fit.
     """
     config = config or StereoConfig()
-    if bucket:
-        return Predictor(config, params, memory_limit_gb=memory_limit_gb)(left, right)
+    if bucket or confidence:
+        return Predictor(config, params, memory_limit_gb=memory_limit_gb, confidence=confidence)(left, right)
     variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb)
     return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
@@ -518,7 +548,7 @@ def stages(left: Any, right: Any, config: StereoConfig | None = None, params=Non
 
     Keys: cost, cost_cbca, cost_sgm, cost_final (``f32[H, W, D]``), disp_wta, disp_right,
     labels (0 correct, 1 mismatch, 2 occlusion), disp_filled, disp_subpixel, disp_median,
-    disparity. memory_limit_gb: as in :func:`disparity` (the estimate counts the kept volumes).
+    confidence, disparity. memory_limit_gb: as in :func:`disparity` (the estimate counts the kept volumes).
     """
     config = config or StereoConfig()
     variables, net = _model_args(config, params)

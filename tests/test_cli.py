@@ -37,7 +37,7 @@ def test_predict_writes_disparity_depth_and_timings(pair_files, tmp_path, capsys
                             "--baseline", 0.54, "--focal", 721.5, "--ply"], capsys)
     assert code == 0, stdout
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(["disparity.png", "disparity.pfm", "disparity_color.png", "depth.png", "depth.npy",
+    assert names == sorted(["disparity.png", "disparity.pfm", "disparity_color.png", "confidence.png", "confidence.npy", "depth.png", "depth.npy",
                             "points.ply", "config.json", "timings.json"])
     disp = cv2.imread(str(out / "disparity.png"), cv2.IMREAD_UNCHANGED)
     assert disp.dtype == np.uint16

@@ -20,6 +20,7 @@ def test_fill_replaces_only_between_the_markers():
     out = report.fill(text, {"t": "new\n", "absent": "x"})
     assert out == "intro\n<!-- t -->\nnew\n<!-- /t -->\nmiddle\n<!-- u -->\nkeep\n<!-- /u -->\nend\n"
     assert report.fill(out, {"t": "new"}) == out                 # filling twice changes nothing
+    assert report.fill("<!-- e -->\n<!-- /e -->\n", {"e": "x"}) == "<!-- e -->\nx\n<!-- /e -->\n"   # an empty block
 
 
 def test_doc_table_demotes_the_title_and_rebases_figure_links():
@@ -33,7 +34,9 @@ def test_doc_table_demotes_the_title_and_rebases_figure_links():
 def test_committed_readme_and_docs_tables_are_generated_from_the_results_files():
     report = _report()
     results = ROOT / "experiments" / "results"
-    blocks = {"results_table": report.readme_table(results), "speed_table": report.speed_table(results)}
+    blocks = {"results_table": report.readme_table(results), "speed_table": report.speed_table(results),
+              "all_pixel_table": report.all_pixel_table(results)}
+    assert all(blocks.values()), "a README table has no results file"
     readme = (ROOT / "README.md").read_text()
     assert all(f"<!-- {name} -->" in readme for name in blocks)
     assert report.fill(readme, blocks) == readme, "README tables differ from experiments/results: run make report"

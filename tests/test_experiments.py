@@ -25,7 +25,7 @@ def dirs(tmp_path_factory):
 def run(script, dirs, *extra):
     cmd = [sys.executable, str(ROOT / "experiments" / script), "--quick", "--data", str(DATA),
            "--out", str(dirs["out"]), *extra]
-    if script not in ("report.py", "figures.py", "depth_example.py"):
+    if script not in ("report.py", "figures.py", "depth_example.py", "confidence.py"):
         cmd += ["--runs", str(dirs["runs"])]
     if script == "report.py":
         cmd = [sys.executable, str(ROOT / "experiments" / script), "--quick", "--results", str(dirs["out"])]
@@ -150,3 +150,16 @@ def test_compressed_quick(dirs):
     assert data["becomes_best"] == (next(r for r in rows if r["name"] == data["chosen"])["val"] <= 4.07)
     assert in_range(data["full"]["val"]) and in_range(data["sgbm"]["val"])
     assert "speed against accuracy" in (dirs["out"] / "compressed_quick.md").read_text()
+
+
+def test_confidence_quick(dirs):
+    run("confidence.py", dirs)
+    data = json.loads((dirs["out"] / "confidence_000021_quick.json").read_text())
+    curves, area = data["curves"], data["area"]
+    assert set(curves) == {"confidence", "oracle", "random"} and len(curves["oracle"]) == 10
+    # the oracle order is never worse than any other at any fraction, and all end at the same error
+    for name in ("confidence", "random"):
+        assert all(o <= c + 1e-9 for o, c in zip(curves["oracle"], curves[name]))
+        assert abs(curves[name][-1] - curves["oracle"][-1]) < 1e-9
+    assert all(in_range(v) for v in area.values())
+    assert (dirs["out"] / "figures" / "confidence_000021_quick.png").is_file()
