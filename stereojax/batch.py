@@ -77,10 +77,15 @@ def is_complete(target: Path, record: dict) -> bool:
 
 
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
-                 phases=None, record: bool = False, min_confidence: float = 0.0) -> dict:
+                 phases=None, record: bool = False, min_confidence: float = 0.0,
+                 check_rectified: str = "warn") -> dict:
     """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``,
     with its confidence map (``confidence.png``, ``confidence.npy``); pixels whose confidence
     is below ``min_confidence`` have no disparity and no depth (0 in the PNGs).
+    check_rectified: "warn" (an :class:`~stereojax.errors.InputWarning` when the pair does not
+    look rectified or looks swapped, :func:`stereojax.rectification.check_rectified`), "error"
+    (a :class:`~stereojax.errors.StereoInputError` instead) or "off". With ``calib``, a median
+    depth outside 0.1-1000 m is warned about (:func:`stereojax.calibration.plausibility_warnings`).
 
     resolve(width, height) -> :class:`stereojax.models.Resolved` says what runs for this input.
     record: also write ``frame.json`` (what the frame was made with, and its files) last.
@@ -91,6 +96,7 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     from .pipeline import Predictor
 
     sample = load_pair(left_path, right_path)
+    _check_rectified(sample, check_rectified)
     run = resolve(sample.left.shape[1], sample.left.shape[0])
     cfg = run.config
     (disp, conf), timings = Predictor(cfg, run.model(), current_device(), confidence=True).timed(
@@ -98,6 +104,8 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     disp = blank_unconfident(disp, conf, min_confidence)
     target.mkdir(parents=True, exist_ok=True)
     written = write_prediction(target, "", disp, calib, sample.left, ply=ply) + write_confidence(target, "", conf)
+    if calib is not None:
+        _check_depth(disp, calib)
     write_json(target / "config.json", cfg.to_dict())
     write_json(target / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                          "max_disp": cfg.max_disp, "method": cfg.cost.method,
@@ -109,7 +117,34 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run}
 
 
-def _predict_into_place(pair, out: Path, resolve, calib, ply, min_confidence) -> dict:
+def _check_rectified(sample, mode: str) -> None:
+    import warnings
+
+    from .errors import InputWarning, StereoInputError
+    from .rectification import check_rectified
+
+    if mode == "off":
+        return
+    problem = check_rectified(sample.left, sample.right).problem
+    if problem and mode == "error":
+        raise StereoInputError(problem)
+    if problem:
+        warnings.warn(problem, InputWarning, stacklevel=3)
+
+
+def _check_depth(disp, calib) -> None:
+    import warnings
+
+    from .calibration import plausibility_warnings
+    from .depth import disparity_to_depth
+    from .errors import InputWarning
+
+    z = disparity_to_depth(disp, calib.baseline, calib.focal, calib.doffs)
+    for line in plausibility_warnings(depth=z):
+        warnings.warn(line, InputWarning, stacklevel=3)
+
+
+def _predict_into_place(pair, out: Path, resolve, calib, ply, min_confidence, check) -> dict:
     """:func:`predict_pair` into a hidden folder, renamed to ``out/<name>`` once complete."""
     name, left_p, right_p = pair
     final = out / name
@@ -117,7 +152,7 @@ def _predict_into_place(pair, out: Path, resolve, calib, ply, min_confidence) ->
     shutil.rmtree(staging, ignore_errors=True)
     try:
         result = predict_pair(left_p, right_p, staging, resolve, calib, ply, record=True,
-                              min_confidence=min_confidence)
+                              min_confidence=min_confidence, check_rectified=check)
         if final.exists():
             old = out / f".{name}.old-{os.getpid()}"
             final.rename(old)
@@ -146,7 +181,8 @@ def _reusable(pair, out: Path, resolve, calib, ply, min_confidence) -> bool:
 
 
 def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = False,
-                  devices: list | None = None, overwrite: bool = False, min_confidence: float = 0.0) -> dict:
+                  devices: list | None = None, overwrite: bool = False, min_confidence: float = 0.0,
+                  check_rectified: str = "warn") -> dict:
     """Every ``(name, left, right)`` pair into ``out/<name>/``: frames already complete with
     this run's settings are skipped (all computed with ``overwrite``), one compiled chain per
     size bucket, a progress bar with frames/s and the time left, one line per failed pair (the
@@ -169,7 +205,7 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
 
     def work(pair):
         try:
-            return pair, _predict_into_place(pair, out, resolve, calib, ply, min_confidence), None
+            return pair, _predict_into_place(pair, out, resolve, calib, ply, min_confidence, check_rectified), None
         except (StereoError, OSError) as exc:
             return pair, None, exc
 
@@ -219,6 +255,13 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
         interrupted.summary = summary
         raise interrupted
     return summary
+
+
+def pair_line(r: dict, out: Path) -> str:
+    """The line ``stereojax predict`` prints after one pair (:func:`predict_pair`'s result)."""
+    disp, timings = r["disparity"], r["timings"]
+    return (f"disparity {disp.shape[1]}x{disp.shape[0]} ({r['run'].description}), {timings['seconds']:.2f} s "
+            f"(+ {timings['compile_s']:.1f} s compiling) -> {out} ({', '.join(r['written'])})")
 
 
 def summary_line(s: dict, out: Path) -> str:

@@ -39,15 +39,18 @@ def _resolve(args, width: int = 0, height: int = 0, dataset: str | None = None, 
 
 
 def _calibration(args):
-    from .data.datasets import Calibration
+    from .calibration import calibration_from_options, describe
 
-    return Calibration.from_options(args.baseline, args.focal, args.doffs)
+    calib, source = calibration_from_options(args.calib, args.baseline, args.focal, args.doffs)
+    if calib is not None:
+        print(describe(calib, source))
+    return calib
 
 
 # ---- commands ----------------------------------------------------------------------------------
 
 def cmd_predict(args) -> int:
-    from .batch import predict_batch, predict_pair, summary_line
+    from .batch import pair_line, predict_batch, predict_pair, summary_line
     from .compile_cache import enable
     from .devices import local_devices
     from .progress import Phases
@@ -58,17 +61,12 @@ def cmd_predict(args) -> int:
     calib = _calibration(args)
     enable()
 
-    def resolve(w, h):
-        return _resolve(args, w, h)
+    opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified)
+    resolve = lambda w, h: _resolve(args, w, h)  # noqa: E731
     if not batch:
-        _, left_p, right_p = pairs[0]
-        r = predict_pair(left_p, right_p, out, resolve, calib, args.ply, Phases(), min_confidence=args.min_confidence)
-        disp, timings = r["disparity"], r["timings"]
-        print(f"disparity {disp.shape[1]}x{disp.shape[0]} ({r['run'].description}), {timings['seconds']:.2f} s "
-              f"(+ {timings['compile_s']:.1f} s compiling) -> {out} ({', '.join(r['written'])})")
+        print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
         return 0
-    s = predict_batch(pairs, out, resolve, calib, args.ply, devices, overwrite=args.overwrite,
-                      min_confidence=args.min_confidence)
+    s = predict_batch(pairs, out, resolve, devices=devices, overwrite=args.overwrite, **opts)
     print(summary_line(s, out))
     return 2 if s["failed"] else 0
 
@@ -85,11 +83,8 @@ def cmd_evaluate(args) -> int:
                          gt="occ" if args.gt == "both" else args.gt)
     run = _resolve(args, 0, 0, args.dataset)
     print(f"method: {run.description}", file=sys.stderr)
-    devices = local_devices(args.devices)
-    if len(devices) > 1:
-        print(f"{len(devices)} devices, one frame each at a time", file=sys.stderr)
-    evaluate_dataset(items, args.dataset, run, out, gt=args.gt, fill=args.fill,
-                     max_disp=args.max_disp, sgbm=args.sgbm, devices=devices, overwrite=args.overwrite)
+    evaluate_dataset(items, args.dataset, run, out, gt=args.gt, fill=args.fill, max_disp=args.max_disp,
+                     sgbm=args.sgbm, devices=local_devices(args.devices), overwrite=args.overwrite)
     return 0
 
 
@@ -190,7 +185,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--baseline", type=float, help="baseline in metres (for depth)")
     sp.add_argument("--focal", type=float, help="focal length in pixels (for depth)")
     sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")
+    sp.add_argument("--calib", help="calibration file for depth: KITTI calib_cam_to_cam.txt or calib/<frame>.txt, "
+                    "Middlebury calib.txt, OpenCV YAML or JSON with K and baseline (m)")
     sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs calibration)")
+    sp.add_argument("--check-rectified", default="warn", choices=["warn", "error", "off"], help="check with "
+                    "feature matches that the pair is rectified and not swapped: warn (default), error, off")
     sp.add_argument("--min-confidence", type=_unit, default=0.0, metavar="T", help="no disparity or depth "
                     "(0 in the PNGs) where the confidence (confidence.png) is below T in [0, 1] (default 0: all)")
     sp.add_argument("--overwrite", action="store_true", help="a batch computes every frame again (default: "

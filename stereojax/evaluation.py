@@ -239,6 +239,8 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
     from .outputs import color_scale, write_prediction
 
     out = Path(out)
+    if devices and len(devices) > 1:
+        print(f"{len(devices)} devices, one frame each at a time", file=sys.stderr)
     methods = {"pipeline": chain_method(run.config, run.model())}
     if sgbm:
         methods.update(sgbm=sgbm_method(pad=True), sgbm_unpadded=sgbm_method(pad=False))

@@ -175,7 +175,7 @@ def _read_text(path: Path, what: str) -> str:
         raise StereoInputError(f"cannot read {what} {path}: {exc.strerror or exc}") from None
 
 
-def _kitti_matrices(path: Path) -> dict[str, np.ndarray]:
+def kitti_matrices(path: Path) -> dict[str, np.ndarray]:
     """``KEY: v1 v2 ...`` lines of a KITTI calibration file -> {KEY: float64[n]} (numeric only)."""
     out = {}
     for line in _read_text(path, "calibration file").splitlines():
@@ -189,8 +189,8 @@ def _kitti_matrices(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def _calib_from_projections(path: Path, key_left: str, key_right: str) -> Calibration:
-    mats = _kitti_matrices(path)
+def calib_from_projections(path: Path, key_left: str, key_right: str) -> Calibration:
+    mats = kitti_matrices(path)
     for k in (key_left, key_right):
         if k not in mats or mats[k].size != 12:
             found = "missing" if k not in mats else f"{mats[k].size} values"
@@ -261,7 +261,7 @@ def load_kitti2015(root: PathLike, frame: str | int, gt: str = "noc") -> StereoS
     left, right, disp, valid, noc_valid = _kitti_views(root, ("image_2", "image_3"), ("disp_noc_0", "disp_occ_0"),
                                                        name, gt)
     calib_path = root / "calib_cam_to_cam" / f"{frame}.txt"
-    calib = _calib_from_projections(calib_path, "P_rect_02", "P_rect_03") if calib_path.is_file() else None
+    calib = calib_from_projections(calib_path, "P_rect_02", "P_rect_03") if calib_path.is_file() else None
     return StereoSample(name=frame, left=left, right=right, gt=disp, gt_valid=valid,
                         gt_noc_valid=noc_valid, calib=calib)
 
@@ -317,10 +317,10 @@ def load_kitti2012(root: PathLike, frame: str | int, gt: str = "noc") -> StereoS
     if calib_path.is_file():
         keys = ("P0", "P1")
         if views[0] == "colored_0":
-            mats = _kitti_matrices(calib_path)
+            mats = kitti_matrices(calib_path)
             if "P2" in mats and "P3" in mats:
                 keys = ("P2", "P3")
-        calib = _calib_from_projections(calib_path, *keys)
+        calib = calib_from_projections(calib_path, *keys)
     return StereoSample(name=frame, left=left, right=right, gt=disp, gt_valid=valid,
                         gt_noc_valid=noc_valid, calib=calib)
 
@@ -336,7 +336,7 @@ def list_middlebury(root: PathLike) -> list[str]:
                   if d.is_dir() and (d / "im0.png").is_file() and (d / "im1.png").is_file())
 
 
-def _parse_middlebury_calib(path: Path) -> tuple[Calibration, int | None]:
+def parse_middlebury_calib(path: Path) -> tuple[Calibration, int | None]:
     fields = {}
     for line in _read_text(path, "calibration file").splitlines():
         key, sep, value = line.partition("=")
@@ -414,7 +414,7 @@ def load_middlebury(scene_dir: PathLike, gt: str = "occ") -> StereoSample:
             valid = noc_valid
     calib, ndisp = (None, None)
     if (scene / "calib.txt").is_file():
-        calib, ndisp = _parse_middlebury_calib(scene / "calib.txt")
+        calib, ndisp = parse_middlebury_calib(scene / "calib.txt")
     return StereoSample(name=scene.name, left=left, right=right, gt=disp, gt_valid=valid,
                         gt_noc_valid=noc_valid, calib=calib, max_disp_hint=ndisp)
 

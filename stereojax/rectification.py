@@ -1,0 +1,82 @@
+"""A check, before matching, that a pair is rectified and in the right order.
+
+Sparse ORB features are matched between the two images (Hamming distance, mutual best
+matches) and filtered with RANSAC on the fundamental matrix. In a rectified pair a point and
+its match lie on the same row, and the match in the right image lies at the same column or to
+the left (x_right = x_left - d, d >= 0). The check reports the vertical offset of the matches
+(median and the 90th percentile of its absolute value) and the share of matches that lie to
+the right, which, when most do, means left and right are swapped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: a rectified pair: the matches' rows differ by at most this (median), and 90 % of them by at
+#: most MAX_ROW_SPREAD_PX (ORB's keypoints are not sub-pixel exact: on the 60 rectified KITTI
+#: unlabeled pairs of the shared data the 90th percentile reaches 0.86 px, none is flagged)
+MAX_ROW_OFFSET_PX = 1.0
+MAX_ROW_SPREAD_PX = 1.5
+#: more than this share of the matches to the right (x_right > x_left + 0.5) means swapped
+SWAPPED_SHARE = 0.5
+MIN_MATCHES = 20
+
+
+@dataclass(frozen=True)
+class RectificationCheck:
+    """What :func:`check_rectified` found. ``problem`` is None when the pair looks rectified (or
+    when there were too few matches to tell), else one line with the measurement and what to do."""
+
+    matches: int
+    row_offset_median: float
+    row_offset_p90: float
+    share_right: float
+    problem: str | None
+
+
+def _grey8(img) -> np.ndarray:
+    import cv2
+
+    a = np.asarray(img)
+    if a.ndim == 3:
+        a = cv2.cvtColor(a[..., :3].astype(np.float32), cv2.COLOR_RGB2GRAY)
+    if a.dtype != np.uint8:
+        a = np.clip(a.astype(np.float32) * (255.0 / max(float(a.max()), 1.0)), 0, 255)
+    return a.astype(np.uint8)
+
+
+def check_rectified(left, right, features: int = 3000) -> RectificationCheck:
+    """Check a pair (any image arrays ``[H, W]`` or ``[H, W, 3]``) with ORB matches and RANSAC;
+    well under a second on a KITTI-sized pair."""
+    import cv2
+
+    gl, gr = _grey8(left), _grey8(right)
+    orb = cv2.ORB_create(nfeatures=features)
+    kl, dl = orb.detectAndCompute(gl, None)
+    kr, dr = orb.detectAndCompute(gr, None)
+    if dl is None or dr is None or len(kl) < MIN_MATCHES or len(kr) < MIN_MATCHES:
+        return RectificationCheck(0, float("nan"), float("nan"), float("nan"), None)
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(dl, dr)
+    if len(pairs) < MIN_MATCHES:
+        return RectificationCheck(len(pairs), float("nan"), float("nan"), float("nan"), None)
+    pl = np.float32([kl[m.queryIdx].pt for m in pairs])
+    pr = np.float32([kr[m.trainIdx].pt for m in pairs])
+    _, inliers = cv2.findFundamentalMat(pl, pr, cv2.FM_RANSAC, 1.0, 0.999)
+    if inliers is not None and inliers.sum() >= MIN_MATCHES:
+        keep = inliers.ravel().astype(bool)
+        pl, pr = pl[keep], pr[keep]
+    dy = pr[:, 1] - pl[:, 1]
+    dx = pr[:, 0] - pl[:, 0]
+    median, p90 = float(np.median(dy)), float(np.percentile(np.abs(dy), 90))
+    share_right = float(np.mean(dx > 0.5))
+    problem = None
+    if share_right > SWAPPED_SHARE:
+        problem = (f"left and right look swapped: {100 * share_right:.0f} % of {len(dx)} feature matches lie to "
+                   "the right in the right image (a rectified left view sees them further right); swap the two inputs")
+    elif abs(median) > MAX_ROW_OFFSET_PX or p90 > MAX_ROW_SPREAD_PX:
+        problem = (f"the pair does not look rectified: matched features lie up to {p90:.1f} px apart vertically "
+                   f"(90th percentile of {len(dy)} matches; median {median:+.1f} px); rectify it first, e.g. with "
+                   "OpenCV's stereoRectify and remap")
+    return RectificationCheck(len(dy), median, p90, share_right, problem)
