@@ -78,10 +78,12 @@ def is_complete(target: Path, record: dict) -> bool:
 
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
                  phases=None, record: bool = False, min_confidence: float = 0.0,
-                 check_rectified: str = "warn") -> dict:
+                 check_rectified: str = "warn", tile: str = "auto") -> dict:
     """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``,
     with its confidence map (``confidence.png``, ``confidence.npy``); pixels whose confidence
     is below ``min_confidence`` have no disparity and no depth (0 in the PNGs).
+    tile: "auto" computes a pair that would not fit the memory limit in horizontal bands
+    (:mod:`stereojax.tiling`), "off" refuses it (:class:`~stereojax.errors.MemoryBudgetError`).
     check_rectified: "warn" (an :class:`~stereojax.errors.InputWarning` when the pair does not
     look rectified or looks swapped, :func:`stereojax.rectification.check_rectified`), "error"
     (a :class:`~stereojax.errors.StereoInputError` instead) or "off". With ``calib``, a median
@@ -99,7 +101,7 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     _check_rectified(sample, check_rectified)
     run = resolve(sample.left.shape[1], sample.left.shape[0])
     cfg = run.config
-    (disp, conf), timings = Predictor(cfg, run.model(), current_device(), confidence=True).timed(
+    (disp, conf), timings = Predictor(cfg, run.model(), current_device(), confidence=True, tile=tile).timed(
         sample.left, sample.right, phases)
     disp = blank_unconfident(disp, conf, min_confidence)
     target.mkdir(parents=True, exist_ok=True)
@@ -144,15 +146,14 @@ def _check_depth(disp, calib) -> None:
         warnings.warn(line, InputWarning, stacklevel=3)
 
 
-def _predict_into_place(pair, out: Path, resolve, calib, ply, min_confidence, check) -> dict:
+def _predict_into_place(pair, out: Path, resolve, opts: dict) -> dict:
     """:func:`predict_pair` into a hidden folder, renamed to ``out/<name>`` once complete."""
     name, left_p, right_p = pair
     final = out / name
     staging = out / f".{name}{_PARTIAL}{os.getpid()}"
     shutil.rmtree(staging, ignore_errors=True)
     try:
-        result = predict_pair(left_p, right_p, staging, resolve, calib, ply, record=True,
-                              min_confidence=min_confidence, check_rectified=check)
+        result = predict_pair(left_p, right_p, staging, resolve, record=True, **opts)
         if final.exists():
             old = out / f".{name}.old-{os.getpid()}"
             final.rename(old)
@@ -182,7 +183,7 @@ def _reusable(pair, out: Path, resolve, calib, ply, min_confidence) -> bool:
 
 def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = False,
                   devices: list | None = None, overwrite: bool = False, min_confidence: float = 0.0,
-                  check_rectified: str = "warn") -> dict:
+                  check_rectified: str = "warn", tile: str = "auto") -> dict:
     """Every ``(name, left, right)`` pair into ``out/<name>/``: frames already complete with
     this run's settings are skipped (all computed with ``overwrite``), one compiled chain per
     size bucket, a progress bar with frames/s and the time left, one line per failed pair (the
@@ -197,6 +198,7 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     from .memory import current_rss_bytes, peak_rss_bytes
 
     devices = list(devices or [])
+    opts = dict(calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile)
     for stale in [*out.glob(f".*{_PARTIAL}*"), *out.glob(".*.old-*")]:          # left by a killed run
         shutil.rmtree(stale, ignore_errors=True)
     skipped = [] if overwrite else [p[0] for p in pairs if _reusable(p, out, resolve, calib, ply, min_confidence)]
@@ -205,7 +207,7 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
 
     def work(pair):
         try:
-            return pair, _predict_into_place(pair, out, resolve, calib, ply, min_confidence, check_rectified), None
+            return pair, _predict_into_place(pair, out, resolve, opts), None
         except (StereoError, OSError) as exc:
             return pair, None, exc
 

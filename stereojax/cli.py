@@ -61,7 +61,8 @@ def cmd_predict(args) -> int:
     calib = _calibration(args)
     enable()
 
-    opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified)
+    opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified,
+                tile=args.tile)
     resolve = lambda w, h: _resolve(args, w, h)  # noqa: E731
     if not batch:
         print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
@@ -188,6 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--calib", help="calibration file for depth: KITTI calib_cam_to_cam.txt or calib/<frame>.txt, "
                     "Middlebury calib.txt, OpenCV YAML or JSON with K and baseline (m)")
     sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs calibration)")
+    sp.add_argument("--tile", default="auto", choices=["auto", "off"], help="a pair too large for the memory limit: "
+                    "auto computes it in horizontal bands (default), off refuses it (exit code 6)")
     sp.add_argument("--check-rectified", default="warn", choices=["warn", "error", "off"], help="check with "
                     "feature matches that the pair is rectified and not swapped: warn (default), error, off")
     sp.add_argument("--min-confidence", type=_unit, default=0.0, metavar="T", help="no disparity or depth "

@@ -402,6 +402,8 @@ class Predictor:
         inter = predict.stages(left, right)       # every intermediate result
         disp, conf = Predictor(config, model, confidence=True)(left, right)
 
+    ``tile="auto"``: a frame whose chain would not fit the memory limit is computed in
+    horizontal bands and stitched (:mod:`stereojax.tiling`) instead of refused.
     ``confidence=True``: every call returns (disparity, confidence), the confidence a per-pixel
     value in [0, 1] from the cost margin and the left-right agreement
     (:func:`stereojax.refine.confidence`). The model's variables are put on the device once,
@@ -409,9 +411,12 @@ class Predictor:
     """
 
     def __init__(self, config: StereoConfig | None = None, model=None, device=None, memory_limit_gb=None,
-                 confidence: bool = False):
+                 confidence: bool = False, tile: str = "off"):
         self.config = (config or StereoConfig()).validate()
         self.confidence = bool(confidence)
+        if tile not in ("off", "auto"):
+            raise ConfigError(f"tile must be 'auto' or 'off', got {tile!r}")
+        self.tile = tile
         variables, self.net = _model_args(self.config, model)
         self.model, self.device, self.memory_limit_gb = model, device, memory_limit_gb
         if variables is not None and device is not None:
@@ -444,7 +449,30 @@ class Predictor:
 
     def __call__(self, left, right) -> np.ndarray:
         """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair."""
+        rows = self.band_rows(left)
+        if rows is not None:
+            return self.in_bands(left, right, rows)
         return self.run(*self.prepare(left, right))
+
+    def band_rows(self, left) -> int | None:
+        """With ``tile="auto"``, the rows per band when the whole frame would not fit the memory
+        limit (:mod:`stereojax.tiling`); None when it is computed whole."""
+        from . import tiling
+
+        shape = np.shape(left)
+        if self.tile != "auto" or len(shape) < 2:     # a bad input is refused by prepare()
+            return None
+        h, w = shape[:2]
+        if tiling.fits(h, w, self.config, self.memory_limit_gb):
+            return None
+        return tiling.band_rows(h, w, self.config, self.memory_limit_gb)
+
+    def in_bands(self, left, right, rows: int, overlap: int | None = None):
+        """The pair in horizontal bands of ``rows`` rows, stitched (:func:`stereojax.tiling.run_in_bands`)."""
+        from . import tiling
+
+        return tiling.run_in_bands(lambda a, b: self.run(*self.prepare(a, b)), left, right, rows,
+                                   tiling.SEAM_OVERLAP if overlap is None else overlap)
 
     def volume(self, left, right) -> Volume:
         """The pair's matching cost with this predictor's cost settings, padded to its size
@@ -477,6 +505,20 @@ class Predictor:
         from .progress import Phases
 
         phases = phases or Phases(quiet=True)
+        device = self.device if self.device is not None else jax.devices()[0]
+        rows = self.band_rows(left)
+        if rows is not None:
+            from .tiling import SEAM_OVERLAP, bands
+
+            h, w = np.shape(left)[:2]
+            n = len(bands(h, rows, SEAM_OVERLAP))
+            phases.start(f"computing the disparity of {w}x{h} in {n} bands of {rows} rows (the whole frame "
+                         "would not fit the memory limit)")
+            out = self.in_bands(left, right, rows)
+            secs = phases.done()
+            shape = bucket_shape(rows, w)
+            return out, {"seconds": secs, "compile_s": 0.0, "bucket": [int(shape[0]), int(shape[1])],
+                         "device": str(device), "bands": n, "band_rows": rows}
         gl, gr = self.prepare(left, right)
         shape = bucket_shape(*gl.shape)
         compile_s = 0.0
@@ -488,7 +530,6 @@ class Predictor:
         phases.start(f"computing the disparity of {gl.shape[1]}x{gl.shape[0]}")
         disp = self.run(gl, gr)
         secs = phases.done()
-        device = self.device if self.device is not None else jax.devices()[0]
         return disp, {"seconds": secs, "compile_s": compile_s, "bucket": [int(shape[0]), int(shape[1])],
                       "device": str(device)}
 

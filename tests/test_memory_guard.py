@@ -78,7 +78,7 @@ def test_memory_guard_cli_exit_6(tmp_path, capsys, monkeypatch):
     io.write_png(tmp_path / "r.png", img)
     out = tmp_path / "out"
     code, _, err = _cli(["predict", tmp_path / "l.png", tmp_path / "r.png", "--out", out, "--method", "census",
-                         "--max-disp", "228"], capsys, "4K pair (3840x2160, 228 disparities), CLI")
+                         "--max-disp", "228", "--tile", "off"], capsys, "4K pair (3840x2160, 228 disparities), CLI")
     line = _one_line(err)
     assert code == 6 and line.startswith("stereojax predict: error: a 2160x3840 frame with 228 disparities")
     assert list(out.iterdir()) == []
