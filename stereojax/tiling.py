@@ -20,6 +20,9 @@ from .errors import MemoryBudgetError
 SEAM_OVERLAP = 48
 #: band heights are multiples of this (the size buckets of the compile cache)
 ROW_STEP = 32
+#: a band may use this share of the memory limit above the fixed overhead (the available
+#: memory, and so the limit, changes a little between choosing the bands and checking each one)
+BAND_SHARE = 0.9
 
 
 def fits(height: int, width: int, config, limit_gb=None) -> bool:
@@ -31,16 +34,18 @@ def fits(height: int, width: int, config, limit_gb=None) -> bool:
 
 def band_rows(height: int, width: int, config, limit_gb=None, overlap: int = SEAM_OVERLAP) -> int:
     """The height of the largest band (a multiple of 32 rows, at most the frame's height) whose
-    chain fits the memory limit. Raises :class:`MemoryBudgetError` when not even a band with
-    ``2 * overlap + 32`` rows fits."""
-    from .memory import OVERHEAD, chain_peak_bytes, memory_limit, volumes
+    chain, padded to its size bucket, fits in ``BAND_SHARE`` of the memory limit above the fixed
+    overhead (the limit is read again for every band, from the memory available then). Raises
+    :class:`MemoryBudgetError` when not even a band with ``2 * overlap + 32`` rows fits."""
+    from .compile_cache import bucket_shape
+    from .memory import OVERHEAD, chain_peak_bytes, memory_limit
 
     limit, source = memory_limit(limit_gb)
-    per_row = volumes(config) * width * config.max_disp * 4
-    rows = int((limit - OVERHEAD) // per_row) if limit > OVERHEAD else 0
-    rows = min(rows // ROW_STEP * ROW_STEP, height)
-    need = 2 * overlap + ROW_STEP
-    if rows < min(need, height):
+    budget = OVERHEAD + BAND_SHARE * (limit - OVERHEAD)
+    need = min(2 * overlap + ROW_STEP, height)
+    candidates = [height] + list(range((height - 1) // ROW_STEP * ROW_STEP, need - 1, -ROW_STEP))
+    rows = next((r for r in candidates if r >= need and chain_peak_bytes(*bucket_shape(r, width), config) <= budget), 0)
+    if rows < need:
         raise MemoryBudgetError(
             f"a {height}x{width} frame with {config.max_disp} disparities does not fit the memory limit of "
             f"{limit / 2 ** 30:.1f} GiB ({source}) even in bands of {need} rows (about "

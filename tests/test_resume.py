@@ -60,6 +60,23 @@ def _outputs(folder: Path) -> dict:
             if p.is_file() and p.name in ("disparity.pfm", "disparity.png", "config.json")}
 
 
+def _stop_after(data, name: str, frames: int, sig):
+    """Start the batch into ``base/name``, send ``sig`` once ``frames`` frames are complete;
+    (output folder, exit code, stderr)."""
+    out = data["base"] / name
+    proc = _start_and_wait(_cmd(data["left"], data["right"], out), out, data["env"], frames=frames)
+    assert proc.poll() is None, "the batch ended before it could be stopped"
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=120)
+    return out, proc.returncode, err
+
+
+def _again(data, out):
+    """The same command, run again to the end."""
+    return subprocess.run(_cmd(data["left"], data["right"], out), env=data["env"], capture_output=True,
+                          text=True, timeout=600)
+
+
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     base = tmp_path_factory.mktemp("resume")
@@ -73,18 +90,13 @@ def data(tmp_path_factory):
 
 @pytest.mark.slow
 def test_sigkill_then_the_same_command_computes_only_the_missing_frames(data):
-    out = data["base"] / "killed"
-    proc = _start_and_wait(_cmd(data["left"], data["right"], out), out, data["env"], frames=3)
-    assert proc.poll() is None, "the batch ended before it could be killed"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+    out, _, _ = _stop_after(data, "killed", 3, signal.SIGKILL)
     before = _complete(out)
     assert 3 <= len(before) < N_FRAMES
     # every frame folder is complete (nothing half-written under a frame's name)
     assert sorted(p.name for p in out.iterdir() if p.is_dir() and not p.name.startswith(".")) == before
     stamps = {f: (out / f / "frame.json").stat().st_mtime_ns for f in before}
-    again = subprocess.run(_cmd(data["left"], data["right"], out), env=data["env"], capture_output=True,
-                           text=True, timeout=600)
+    again = _again(data, out)
     assert again.returncode == 0, again.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["skipped"] == len(before) and summary["computed"] == N_FRAMES - len(before)
@@ -97,12 +109,8 @@ def test_sigkill_then_the_same_command_computes_only_the_missing_frames(data):
 
 @pytest.mark.slow
 def test_sigterm_finishes_or_drops_the_frame_writes_the_summary_and_exits_143(data):
-    out = data["base"] / "terminated"
-    proc = _start_and_wait(_cmd(data["left"], data["right"], out), out, data["env"], frames=2)
-    assert proc.poll() is None, "the batch ended before it could be stopped"
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143, err
+    out, code, err = _stop_after(data, "terminated", 2, signal.SIGTERM)
+    assert code == 143, err
     summary = json.loads((out / "summary.json").read_text())
     done = _complete(out)
     assert summary["interrupted"] == "SIGTERM" and summary["computed"] == len(done) < N_FRAMES
@@ -110,8 +118,7 @@ def test_sigterm_finishes_or_drops_the_frame_writes_the_summary_and_exits_143(da
     last = err.strip().splitlines()[-1]
     assert "interrupted by SIGTERM" in last and "run the same command to continue" in last
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == done       # no half-written frame
-    again = subprocess.run(_cmd(data["left"], data["right"], out), env=data["env"], capture_output=True,
-                           text=True, timeout=600)
+    again = _again(data, out)
     assert again.returncode == 0 and json.loads((out / "summary.json").read_text())["skipped"] == len(done)
     assert _outputs(out) == _outputs(data["full"])
 
