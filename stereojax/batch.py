@@ -72,6 +72,7 @@ def is_complete(target: Path, record: dict) -> bool:
         return False
     outputs = stored.pop("outputs", None)
     stored.pop("timings", None)
+    stored.pop("size", None)
     return stored == json.loads(json.dumps(record)) and isinstance(outputs, list) \
         and all((target / name).is_file() for name in outputs)
 
@@ -115,7 +116,7 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     written += ["config.json", "timings.json"]
     if record:
         write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence),
-                                       "outputs": written, "timings": timings})
+                                       "size": list(disp.shape), "outputs": written, "timings": timings})
     return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run}
 
 
@@ -166,18 +167,19 @@ def _predict_into_place(pair, out: Path, resolve, opts: dict) -> dict:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _reusable(pair, out: Path, resolve, calib, ply, min_confidence) -> bool:
-    """Whether ``out/<name>`` is complete and made with what this run would use."""
-    from .data.datasets import load_pair
-
+def _reusable(pair, out: Path, resolve, opts: dict) -> bool:
+    """Whether ``out/<name>`` is complete and made with what this run would use. The images are
+    not read: when both input files are the ones recorded, their size is the recorded one."""
     name, left_p, right_p = pair
-    if not (out / name / MANIFEST).is_file():
-        return False
     try:
-        sample = load_pair(left_p, right_p)
-        run = resolve(sample.left.shape[1], sample.left.shape[0])
-        return is_complete(out / name, frame_record(run, calib, ply, left_p, right_p, min_confidence))
-    except (StereoError, OSError):
+        stored = json.loads((out / name / MANIFEST).read_text())
+        if stored.get("left") != _file_id(left_p) or stored.get("right") != _file_id(right_p):
+            return False
+        height, width = stored["size"]
+        record = frame_record(resolve(width, height), opts["calib"], opts["ply"], left_p, right_p,
+                              opts["min_confidence"])
+        return is_complete(out / name, record)
+    except (StereoError, OSError, ValueError, KeyError, TypeError):
         return False
 
 
@@ -201,7 +203,7 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     opts = dict(calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile)
     for stale in [*out.glob(f".*{_PARTIAL}*"), *out.glob(".*.old-*")]:          # left by a killed run
         shutil.rmtree(stale, ignore_errors=True)
-    skipped = [] if overwrite else [p[0] for p in pairs if _reusable(p, out, resolve, calib, ply, min_confidence)]
+    skipped = [] if overwrite else [p[0] for p in pairs if _reusable(p, out, resolve, opts)]
     done = set(skipped)
     todo = [p for p in pairs if p[0] not in done]
 
