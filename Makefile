@@ -84,7 +84,7 @@ train-middlebury: runs/kitti2015_downsize/train_summary.json  ## the shipped Mid
 search-chain: $(STAMP)  ## search the KITTI model's chain settings on training frames 1-19 (odd), cached volumes (~40 min) -> experiments/results/chain_search_kitti2015.*
 	$(EXP)/search_chain.py --dataset kitti2015 --frames 1,3,5,7,9,11,13,15,17,19 --rounds 2
 
-middlebury-folds: $(STAMP)  ## Middlebury, 3 folds: fine-tune the shipped KITTI model, search settings, score held-out scenes vs SGBM, neutral strip (~55 min) -> experiments/results/middlebury_folds_neutral.*
+middlebury-folds: $(STAMP)  ## Middlebury, 3 folds: fine-tune the shipped KITTI model, search settings, score held-out scenes vs SGBM, neutral strip (~40 min) -> experiments/results/middlebury_folds_neutral.*
 	$(EXP)/middlebury_folds.py --data $(DATA) --init kitti2015 --border neutral
 
 compressed: $(STAMP)  ## issue 16: train the compressed candidates on KITTI 2015 1-15 (direct and distilled), score them, choose by experiments/PROTOCOL.md (~45 min) -> experiments/results/compressed.*
