@@ -134,6 +134,28 @@ def test_middlebury_folds_quick(dirs):
             assert in_range(r[m]["bad2"]) and in_range(r[m]["bad3"]) and r[m]["bad3"] <= r[m]["bad2"]
 
 
+def test_self_training_quick(dirs):
+    import numpy as np
+
+    run("self_training.py", dirs)
+    data, md = load(dirs, "self_training")
+    assert data["pairs"] == 2 and data["steps"] == 2 and 0 < data["pseudo_pixels"] <= 2 * data["per_pair"]
+    for name in data["pseudo_labelled"]:        # the confident half of a pair's pixels, at most per_pair
+        z = np.load(Path(data["labels"]) / f"{name}.npz")
+        h, w = z["shape"]
+        assert 0 < len(z["d"]) <= min(data["per_pair"], h * w // 2 + 1)
+        assert np.all((z["d"] >= 0) & (z["d"] < 64)) and np.all(z["y"] < h) and np.all(z["x"] < w)
+    assert Path(data["student"]).is_file()
+    assert [r["set"].split(" (")[0] for r in data["sets"]] == ["KITTI 2015 000021-000030", "KITTI 2015 000001",
+                                                                "KITTI 2012 000000"]
+    scored = {f for r in data["sets"] for f in r["frames"]}
+    assert not scored & set(data["pseudo_labelled"])
+    for r in data["sets"]:
+        for m in ("student", "teacher", "sgbm"):
+            assert in_range(r["mean"][m]["bad3"]) and r["mean"][m]["bad3"] <= r["mean"][m]["bad2"]
+    assert "self-trained student" in md
+
+
 def test_compressed_quick(dirs):
     run("compressed.py", dirs)
     data = json.loads((dirs["out"] / "compressed_quick.json").read_text())
