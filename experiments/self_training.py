@@ -146,7 +146,8 @@ def main():
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     stem = "self_training" + ("_quick" if args.quick else "")
-    write_json(out / f"{stem}.json", {"quick": args.quick, "command": " ".join(sys.argv), "steps": steps, "lr": args.lr, "per_pair": args.per_pair, "pairs": len(pairs),
+    write_json(out / f"{stem}.json", {"quick": args.quick, "command": " ".join(sys.argv), "steps": steps,
+                                      "lr": args.lr, "per_pair": args.per_pair, "pairs": len(pairs),
                                       "gt_pixels": n_gt, "pseudo_pixels": n_pseudo, "label_seconds": label_s,
                                       "train_seconds": train_s, "student": str(run / "checkpoint.msgpack"),
                                       "labels": str(labels_dir), "pseudo_labelled": [p[0] for p in pairs],
