@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate bench train train-middlebury \
-        search-chain middlebury-folds augment-compare compressed confidence train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain middlebury-folds augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -89,6 +89,9 @@ middlebury-folds: $(STAMP)  ## Middlebury, 3 folds: fine-tune the shipped KITTI 
 
 compressed: $(STAMP)  ## issue 16: train the compressed candidates on KITTI 2015 1-15 (direct and distilled), score them, choose by experiments/PROTOCOL.md (~45 min) -> experiments/results/compressed.*
 	$(EXP)/compressed.py --data $(DATA)
+
+self-training: $(STAMP)  ## issue 19: label the 60 unlabeled KITTI pairs with the shipped chain, fine-tune kitti2015 on GT + pseudo-labels, score student and teacher vs SGBM (~40 min) -> experiments/results/self_training.*
+	$(EXP)/self_training.py --data $(DATA)
 
 train-compact: $(STAMP)  ## the shipped compressed model (kitti2015_compact): tower 16, head 64-32, distilled from the shipped kitti2015 model, 30000 steps on KITTI 2015 1-15 (~17 min), then its chain settings searched on 1-15 (odd, ~12 min) -> runs/kitti2015_compact
 	$(CLI) train --data $(DATA) --dataset kitti2015 --frames 000001-000015 --val-frames 000016-000020 \
