@@ -115,7 +115,10 @@ def main():
           + "\n".join(f"* fold {f['fold']} (held out {', '.join(f['held_out'])}): settings "
                       f"{f['changes'] or 'the preset'} (searched on {', '.join(f['searched_on'])}: "
                       f"{f['search_start']:.2f} -> {f['search_best']:.2f})" for f in fold_info) + "\n")
-    stem = "middlebury_folds" + ("_quick" if args.quick else "" if args.border == "replicate" else f"_{args.border}")
+    if args.quick:
+        stem = "middlebury_folds_quick"
+    else:   # replicate: the name of the earlier record
+        stem = "middlebury_folds" + ("" if args.border == "replicate" else f"_{args.border}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / f"{stem}.json", {"steps": cfg.steps, "lr": args.lr, "seed": args.seed, "folds": fold_info,

@@ -32,6 +32,7 @@ from common import DEFAULT_DATA, ROOT, md_table  # noqa: E402
 import stereojax  # noqa: E402
 from stereojax.data.datasets import StereoSample, load_dataset, load_pair, search_range  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
+from stereojax.data.pairs import folder_pairs  # noqa: E402
 from stereojax.evaluation import chain_method, evaluate_frames, sgbm_method  # noqa: E402
 from stereojax.models import learned_config, load_model, weights_path  # noqa: E402
 from stereojax.train import fit, train_preset  # noqa: E402
@@ -41,11 +42,11 @@ KEYS = ("bad2", "bad3", "d1", "epe")
 
 
 def unlabeled_pairs(data: Path) -> list[tuple[str, Path, Path]]:
+    """(id, left, right) of the unlabeled KITTI pairs, matched by file name."""
     root = data / "unlabeled" / "kitti"
-    lefts = sorted((root / "left").glob("*.png"))
-    if not lefts:
-        sys.exit(f"self_training: no unlabeled pairs in {root / 'left'}")
-    return [(p.stem, p, root / "right" / p.name) for p in lefts]
+    if not (root / "left").is_dir() or not (root / "right").is_dir():
+        sys.exit(f"self_training: no unlabeled pairs at {root} (left/ and right/)")
+    return folder_pairs(root / "left", root / "right")
 
 
 def label(pairs, teacher, folder: Path, per_pair: int, crop, max_disp) -> None:
