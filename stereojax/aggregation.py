@@ -125,3 +125,65 @@ def cbca(cost: jax.Array, arms: Arms, iterations: int, max_arm: int = 0) -> jax.
 
     cost, _ = jax.lax.scan(one_pass, cost, None, length=iterations)
     return cost
+
+
+# ---- per-pixel disparity bands ---------------------------------------------------------------
+
+def _band_shift_sum(values, offset, before, after, axis: int, max_arm: int, neutral, weight=None):
+    """Banded arm sum: out[p, j] = sum over q = p + k e_axis (-before[p] <= k <= after[p]) of
+    ``values[q, j + offset[p] - offset[q]]`` (the neighbour at the same *absolute* disparity),
+    or of ``neutral[p, j] * weight[q]`` where that disparity lies outside q's band (weight
+    ``f32[H, W]``, None: 1).
+
+    A ``fori_loop`` over the shifts: unrolled, XLA fused each pass into the next one's gathers
+    and recomputed it (measured on a KITTI frame at K = 32: 2.3 s for two passes against 0.3 s).
+    """
+    k_band = values.shape[-1]
+    pad = [(0, 0)] * 3
+    pad[axis] = (max_arm, max_arm)
+    vals = jnp.pad(values, pad)
+    offs = jnp.pad(offset, pad[:2])
+    wgts = None if weight is None else jnp.pad(weight, pad[:2])
+    n = values.shape[axis]
+    j = jnp.arange(k_band, dtype=jnp.int32)
+
+    def body(i, total):
+        v = jax.lax.dynamic_slice_in_dim(vals, i, n, axis=axis)
+        o = jax.lax.dynamic_slice_in_dim(offs, i, n, axis=axis)
+        nu = neutral
+        if wgts is not None:
+            nu = neutral * jax.lax.dynamic_slice_in_dim(wgts, i, n, axis=axis)[..., None]
+        idx = j + (offset - o)[..., None]
+        inside = (idx >= 0) & (idx < k_band)
+        got = jnp.take_along_axis(v, jnp.clip(idx, 0, k_band - 1), axis=-1)
+        k = i - max_arm
+        take = ((k >= -before) & (k <= after))[..., None]
+        return total + jnp.where(take, jnp.where(inside, got, nu), 0.0)
+
+    return jax.lax.fori_loop(0, 2 * max_arm + 1, body, jnp.zeros_like(values))
+
+
+def cbca_volume(vol, arms: Arms, iterations: int, max_arm: int):
+    """CBCA of a :class:`~stereojax.volume.CostVolume`; returns one with the same bands.
+
+    Full range: :func:`cbca`. Bands: a neighbour q is read at the same absolute disparity as p;
+    where that disparity lies outside q's band, q counts with p's own value (p's cost in the
+    horizontal pass; p's horizontal mean times q's horizontal arm count in the vertical pass),
+    so it neither pulls p's cost up nor down. A band covering the whole range gives :func:`cbca`.
+    """
+    if iterations == 0:
+        return vol
+    if not vol.banded:
+        return vol.with_cost(cbca(vol.cost, arms, iterations, max_arm))
+    left, right, up, down = arms
+    norm = (1.0 / support_sizes(arms))[:, :, None]
+    h_len = (left + right + 1).astype(jnp.float32)
+    off = vol.offset
+
+    def one_pass(c, _):
+        hs = _band_shift_sum(c, off, left, right, 1, max_arm, c)
+        vs = _band_shift_sum(hs, off, up, down, 0, max_arm, hs / h_len[..., None], h_len)
+        return vs * norm, None
+
+    cost, _ = jax.lax.scan(one_pass, vol.cost, None, length=iterations)
+    return vol.with_cost(cost)

@@ -178,6 +178,40 @@ class RefineConfig:
 
 
 @dataclass(frozen=True)
+class BandConfig:
+    """Per-pixel disparity bands set by a coarse pass (stereojax.coarse).
+
+    width: K, the disparities every pixel's band holds; 0 (or >= max_disp) = the full range
+      0 .. max_disp - 1 for every pixel (no coarse pass).
+    scale: the coarse pass runs at 1/scale of the resolution (2 or 4), over the full range, with
+      census, one CBCA pass and SGM (penalties p1, p2, census cost scale).
+    radius: a pixel's band covers the min..max of the coarse disparities within this many
+      coarse pixels, plus ``margin`` full-resolution pixels each side, when that fits in K
+      (otherwise K centred on the pixel's own coarse disparity); ``unsure_radius`` replaces
+      ``radius`` where the coarse left-right check fails.
+    """
+
+    width: int = 0
+    scale: int = 2
+    radius: int = 1
+    unsure_radius: int = 3
+    margin: int = 3
+    p1: float = 0.45
+    p2: float = 7.2
+
+    def validate(self) -> None:
+        if self.width < 0 or self.width == 1 or self.width == 2:
+            raise ConfigError(f"band.width must be 0 (full range) or >= 3, got {self.width}")
+        if self.scale not in (1, 2, 4):
+            raise ConfigError(f"band.scale must be 1, 2 or 4, got {self.scale}")
+        if self.radius < 0 or self.unsure_radius < 0 or self.margin < 0:
+            raise ConfigError("band.radius, band.unsure_radius and band.margin must be >= 0, got "
+                              f"{self.radius}, {self.unsure_radius}, {self.margin}")
+        if not 0 <= self.p1 <= self.p2:
+            raise ConfigError(f"need 0 <= band.p1 <= band.p2, got {self.p1}, {self.p2}")
+
+
+@dataclass(frozen=True)
 class StereoConfig:
     """The whole chain: matching cost -> CBCA -> SGM -> CBCA -> WTA -> LR check -> refinement."""
 
@@ -186,12 +220,22 @@ class StereoConfig:
     cbca: AggregationConfig = field(default_factory=AggregationConfig)
     sgm: SGMConfig = field(default_factory=SGMConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
+    band: BandConfig = field(default_factory=BandConfig)
+
+    @property
+    def banded(self) -> bool:
+        """Whether the chain runs on per-pixel bands (``band.width`` below ``max_disp``)."""
+        return 0 < self.band.width < self.max_disp
 
     def validate(self) -> "StereoConfig":
         if not isinstance(self.max_disp, int) or isinstance(self.max_disp, bool) or self.max_disp <= 0:
             raise ConfigError(f"max_disp must be a positive integer, got {self.max_disp!r}")
-        for sub in (self.cost, self.cbca, self.sgm, self.refine):
+        for sub in (self.cost, self.cbca, self.sgm, self.refine, self.band):
             sub.validate()
+        if self.banded and not self.refine.right_from_left:
+            raise ConfigError("band.width > 0 needs refine.right_from_left = true (the right view of a "
+                              "banded chain is read from the left volume); set band.width = 0 for the "
+                              "full-range chain")
         return self
 
     # ---- JSON round trip -------------------------------------------------------------

@@ -147,3 +147,58 @@ def matching_cost(left: jax.Array, right: jax.Array, max_disp: int, cfg, view: s
     if cfg.method == "sad":
         return sad_cost(left, right, max_disp, cfg.sad_radius, view, cfg.border)
     raise ValueError(f"unknown cost method {cfg.method!r}")
+
+
+# ---- per-pixel disparity bands (stereojax.volume.CostVolume) ---------------------------------
+
+def census_band(left: jax.Array, right: jax.Array, offset: jax.Array, k: int, max_disp: int,
+                radius=(3, 4), border: str = "replicate", valid=None):
+    """Census cost of the left view at each pixel's band ``[offset, offset + k)``: a
+    :class:`~stereojax.volume.CostVolume` whose entries equal those of :func:`census_cost`
+    there (right columns left of the image repeat column 0; ``border="worst"``: INVALID_COST)."""
+    from .volume import CostVolume
+
+    cl = census_transform(left, radius)
+    cr = census_transform(right, radius)
+    h, w = left.shape
+    scale = 1.0 / census_bits(radius)
+    x = jnp.arange(w, dtype=jnp.int32)[None, :]
+    words = [cr[..., i] for i in range(cr.shape[-1])]
+    slices = []
+    for j in range(k):
+        col = x - (offset + j)
+        cc = jnp.clip(col, 0, w - 1)
+        bits = sum(jax.lax.population_count(cl[..., i] ^ jnp.take_along_axis(wd, cc, axis=1))
+                   .astype(jnp.float32) for i, wd in enumerate(words))
+        c = bits * scale
+        if border == "worst":
+            c = jnp.where(col >= 0, c, INVALID_COST)
+        slices.append(c)
+    return CostVolume.band(jnp.stack(slices, axis=-1), offset, max_disp, valid)
+
+
+def band_cost(left: jax.Array, right: jax.Array, offset: jax.Array, k: int, max_disp: int, cfg,
+              valid=None):
+    """The classical cost of ``cfg`` (a CostConfig) in the bands: census directly
+    (:func:`census_band`); SAD from its full volume (its window would need every pixel's own
+    disparities), then cut to the bands."""
+    if cfg.method == "census":
+        return census_band(left, right, offset, k, max_disp, cfg.census_radius, cfg.border, valid)
+    from .volume import band_from_full
+
+    return band_from_full(matching_cost(left, right, max_disp, cfg, "left"), offset, k, valid)
+
+
+def neutral_border_volume(vol, share: float = NEUTRAL_SHARE):
+    """:func:`neutral_border` of a CostVolume: entries whose match leaves the right image
+    (x - d < 0) get ``min + share * (mean - min)`` of the pixel's in-view entries of its band;
+    a pixel whose whole band is out of view keeps its costs."""
+    if not vol.banded:
+        return vol.with_cost(neutral_border(vol.cost, share))
+    w = vol.shape[1]
+    inside = jnp.arange(w)[None, :, None] - vol.disparities() >= 0
+    count = inside.sum(-1, keepdims=True)
+    mean = jnp.where(inside, vol.cost, 0.0).sum(-1, keepdims=True) / jnp.maximum(count, 1)
+    best = jnp.where(inside, vol.cost, jnp.inf).min(-1, keepdims=True)
+    neutral = jnp.where(count > 0, best + share * (mean - best), vol.cost)
+    return vol.with_cost(jnp.where(inside, vol.cost, neutral))

@@ -170,7 +170,8 @@ def candidate_volume(left: jax.Array, right: jax.Array, config, valid=None) -> j
 
 def _ks(config) -> tuple[int, int]:
     """(K for every pixel, K2 for the least sure share; K2 == K when not adaptive)."""
-    c, d = config.cost, config.max_disp
+    c = config.cost
+    d = config.band.width if config.banded else config.max_disp
     k1 = min(c.candidates, d)
     k2 = min(max(c.unsure_candidates, c.candidates), d) if c.unsure_share > 0 else k1
     return k1, k2
@@ -202,21 +203,25 @@ def adaptive_dense_cost(net: NetConfig, variables, fl, fr, cand_vol: jax.Array, 
 
 
 def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, config,
-                      fill: float = 1.0, valid=None) -> jax.Array:
+                      fill: float = 1.0, valid=None, offset=None) -> jax.Array:
     """:func:`adaptive_dense_cost` from the ranked candidates ``i32[H, W, K2]``
-    (:func:`rank_candidates`)."""
+    (:func:`rank_candidates`, absolute disparities). offset: ``i32[H, W]`` band offsets; the
+    result is then the band ``f32[H, W, band.width]`` (entry k: disparity offset + k) instead
+    of the full ``f32[H, W, D]``."""
     c = config.cost
     d = config.max_disp
     k1, k2 = _ks(config)
     model = MatchNet(net)
     h, w, _ = fl.shape
     m = int(c.unsure_share * h * w) if k2 > k1 else 0
+    size = d if offset is None else config.band.width
+    base = 0 if offset is None else offset[..., None]
     # a barrier keeps XLA from fusing the ranking into the head's loop (measured: 1.5x slower)
     ranked = jax.lax.optimization_barrier(ranked)
     cand = ranked[..., :k1]
     cost = head_at(model, variables, fl, fr, cand, c.rows_per_tile)
     yy, xx = jnp.mgrid[:h, :w]
-    vol = jnp.full((h, w, d), fill, jnp.float32).at[yy[..., None], xx[..., None], cand].set(cost)
+    vol = jnp.full((h, w, size), fill, jnp.float32).at[yy[..., None], xx[..., None], cand - base].set(cost)
     if m == 0:
         return vol
     unsure = cost.min(axis=-1)                                                # best head cost found
@@ -225,11 +230,50 @@ def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, conf
     pix = jnp.argsort(-unsure.reshape(-1), stable=True)[:m]                    # least sure first
     ys, xs = pix // w, pix % w
     more = ranked.reshape(h * w, -1)[pix, k1:]                                # [M, K2 - K]
+    idx = more if offset is None else more - offset.reshape(-1)[pix][:, None]
     if valid is not None:   # the share is of the real pixels
         m_real = jnp.floor(c.unsure_share * valid[0] * valid[1]).astype(jnp.int32)
-        more = jnp.where((jnp.arange(m) < m_real)[:, None], more, d)
+        idx = jnp.where((jnp.arange(m) < m_real)[:, None], idx, size)
     more_cost = _head_at_pixels(model, variables, fl, fr, ys, xs, jnp.minimum(more, d - 1))
-    return vol.at[ys[:, None], xs[:, None], more].set(more_cost, mode="drop")
+    return vol.at[ys[:, None], xs[:, None], idx].set(more_cost, mode="drop")
+
+
+def candidate_band(left: jax.Array, right: jax.Array, config, offset, valid=None):
+    """The census candidate chain of :func:`candidate_config` in the bands ``offset`` ``i32[H, W]``:
+    a :class:`~stereojax.volume.CostVolume` (census, CBCA, SGM; lower is better)."""
+    from . import aggregation, cost as cost_mod
+    from .sgm import sgm_volume
+
+    c = candidate_config(config)
+    vol = cost_mod.census_band(left, right, offset, config.band.width, c.max_disp, c.cost.census_radius,
+                               valid=valid)
+    arms = aggregation.cross_arms(left, c.cbca.tau, c.cbca.arm_length, real_pixels(left.shape, valid))
+    vol = aggregation.cbca_volume(vol, arms, c.cbca.iterations_before, c.cbca.arm_length)
+    return sgm_volume(vol, left, right, c.sgm)
+
+
+def rank_band(cand, config) -> jax.Array:
+    """``i32[H, W, K2]``: the absolute disparities of lowest cost in a candidate CostVolume."""
+    return (jax.lax.top_k(-cand.cost, _ks(config)[1])[1] + cand.offset[..., None]).astype(jnp.int32)
+
+
+def ranked_candidates(left, right, config, offset=None, valid=None) -> jax.Array:
+    """The ranked candidates ``i32[H, W, K2]`` (absolute disparities) of the census candidate
+    chain: over the full range, or in the bands ``offset``."""
+    if offset is None:
+        return rank_candidates(candidate_volume(left, right, config, valid), config)
+    return rank_band(candidate_band(left, right, config, offset, valid), config)
+
+
+def band_volume(net: NetConfig, variables, fl, fr, ranked, config, offset=None, valid=None):
+    """The learned :class:`~stereojax.volume.CostVolume` from tower features and ranked
+    candidates (pruned mode), in the bands ``offset`` (None: full range)."""
+    from .volume import CostVolume
+
+    cost = ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid, offset=offset)
+    if offset is None:
+        return CostVolume.full(cost, valid)
+    return CostVolume.band(cost, offset, config.max_disp, valid)
 
 
 def tower_features(net: NetConfig, variables, left: jax.Array, right: jax.Array, valid=None):
@@ -254,24 +298,35 @@ def tower_features(net: NetConfig, variables, left: jax.Array, right: jax.Array,
     return f[0], f[1]
 
 
-def learned_volume(net: NetConfig, variables, left: jax.Array, right: jax.Array, config, valid=None) -> jax.Array:
-    """Left-view cost volume ``f32[H, W, D]`` of grey images (0..255) ``f32[H, W]`` for the
-    chain ``config`` (a StereoConfig with ``cost.method == "learned"``).
+def learned_volume(net: NetConfig, variables, left: jax.Array, right: jax.Array, config, valid=None,
+                   offset=None):
+    """Left-view :class:`~stereojax.volume.CostVolume` of grey images (0..255) ``f32[H, W]`` for
+    the chain ``config`` (a StereoConfig with ``cost.method == "learned"``), over the full range
+    or in the bands ``offset`` ``i32[H, W]`` (:mod:`stereojax.coarse`).
 
-    ``config.cost.candidates``: 0 = exact (every disparity through the head); K > 0 = pruned
-    mode: the head runs on the K best disparities of the census candidate chain, and on
+    ``config.cost.candidates``: 0 = exact (every disparity of the band through the head); K > 0
+    = pruned mode: the head runs on the K best disparities of the census candidate chain, and on
     ``cost.unsure_candidates`` for the ``cost.unsure_share`` of the pixels where it is least
     sure (:func:`adaptive_dense_cost`).
     """
+    from .volume import CostVolume
+
     c = config.cost
     d = config.max_disp
     fl, fr = jax.lax.optimization_barrier(tower_features(net, variables, left, right, valid))
-    if net.head == "cosine":
-        return cosine_cost(fl, fr, d)
-    if not c.candidates:
-        return dense_cost(net, variables, fl, fr, d, c.rows_per_tile)
-    return adaptive_dense_cost(net, variables, fl, fr, candidate_volume(left, right, config, valid),
-                               config, valid=valid)
+    if offset is None:
+        if net.head == "cosine":
+            return CostVolume.full(cosine_cost(fl, fr, d), valid)
+        if not c.candidates:
+            return CostVolume.full(dense_cost(net, variables, fl, fr, d, c.rows_per_tile), valid)
+    elif net.head == "cosine" or not c.candidates:
+        if net.head == "cosine":
+            raise ValueError("the cosine head runs over the full range only (set band.width = 0)")
+        disp = offset[..., None] + jnp.arange(config.band.width, dtype=jnp.int32)
+        cost = head_at(MatchNet(net), variables, fl, fr, disp, c.rows_per_tile)
+        return CostVolume.band(cost, offset, d, valid)
+    ranked = ranked_candidates(left, right, config, offset, valid)
+    return band_volume(net, variables, fl, fr, ranked, config, offset, valid)
 
 
 @functools.partial(jax.jit, static_argnames=("net", "max_disp", "rows_per_tile", "candidates"))
@@ -287,4 +342,4 @@ def learned_cost(net: NetConfig, variables, left: jax.Array, right: jax.Array, m
 
     cfg = StereoConfig(max_disp=max_disp, cost=CostConfig(method="learned", rows_per_tile=rows_per_tile,
                                                           candidates=candidates))
-    return learned_volume(net, variables, left, right, cfg)
+    return learned_volume(net, variables, left, right, cfg).cost

@@ -17,11 +17,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import aggregation, cost as cost_mod, refine
-from .compile_cache import real_pixels
+from . import chain as chain_mod
 from .config import StereoConfig
 from .errors import ConfigError, StereoInputError
-from .sgm import sgm
+from .volume import CostVolume
 
 
 def as_grey(image: Any, name: str, float_scale: float | None = None) -> np.ndarray:
@@ -127,84 +126,29 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=No
     return gl, gr
 
 
-def _view_chain(cost, ref, other, config: StereoConfig, view: str, valid=None):
-    """CBCA -> SGM -> CBCA for one view. Returns dict of volumes. valid: ``i32[2]`` real
-    (rows, columns) of a pair padded on the right and bottom (None: not padded)."""
-    arms = aggregation.cross_arms(ref, config.cbca.tau, config.cbca.arm_length, real_pixels(ref.shape, valid))
-    c1 = aggregation.cbca(cost, arms, config.cbca.iterations_before, config.cbca.arm_length)
-    w = ref.shape[1]
-    if view == "left":
-        real = None if valid is None else (0, valid[0], 0, valid[1])
-        c2 = sgm(c1, ref, other, config.sgm, real)
-    else:
-        # right view: reuse the left-view recurrences on mirrored images (x -> W - 1 - x turns
-        # "match at x + d" into "match at x' - d"); mirrored, the padding is on the left
-        real = None if valid is None else (0, valid[0], w - valid[1], w)
-        mirrored = sgm(c1[:, ::-1], ref[:, ::-1], other[:, ::-1], config.sgm, real)
-        c2 = mirrored[:, ::-1]
-    c3 = aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
-    return c1, c2, c3
-
-
-def _left_volume(left, right, config: StereoConfig, variables, net, valid=None):
+def _left_volume(left, right, config: StereoConfig, variables, net, valid=None, offset=None):
+    """The left-view :class:`~stereojax.volume.CostVolume` in the bands ``offset`` (None: full)."""
     if config.cost.method == "learned":
         from .learned_cost import learned_volume
 
-        return learned_volume(net, variables, left, right, config, valid)
-    return cost_mod.matching_cost(left, right, config.max_disp, config.cost, "left")
+        return learned_volume(net, variables, left, right, config, valid, offset)
+    return chain_mod.classic_volume(left, right, config, offset, valid)
 
 
 def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, variables=None, net=None,
            keep: bool = True, valid=None) -> dict[str, jax.Array]:
-    vol = _left_volume(left, right, config, variables, net, valid)
-    return chain_from_volume(vol, left, right, config, keep, valid)
+    off_l, off_r = chain_mod.bands(left, right, config, valid)
+    vol = _left_volume(left, right, config, variables, net, valid, off_l)
+    return chain_mod.run(vol, off_r, left, right, config, keep)
 
 
-def chain_from_volume(vol: jax.Array, left: jax.Array, right: jax.Array, config: StereoConfig,
-                      keep: bool = False, valid=None) -> dict[str, jax.Array]:
-    """Everything after the matching cost: CBCA -> SGM -> CBCA -> WTA -> LR check and filling
-    -> sub-pixel -> median -> bilateral, on the left-view volume ``f32[H, W, D]``."""
-    d = config.max_disp
-    mask = real_pixels(left.shape, valid)
-    if config.cost.border == "neutral":
-        vol = cost_mod.neutral_border(vol)
-    c_cbca, c_sgm, c_final = _view_chain(vol, left, right, config, "left", valid)
-    disp_wta = refine.wta(c_final)
-    out = {"disp_wta": disp_wta}
-    if keep:
-        out.update(cost=vol, cost_cbca=c_cbca, cost_sgm=c_sgm, cost_final=c_final)
-
-    disp = disp_wta.astype(jnp.float32)
-    vw = None if valid is None else valid[1]
-    if config.refine.lr_check:
-        if config.refine.right_from_left:
-            c_right = refine.right_cost_from_left(c_final, cost_mod.INVALID_COST, vw)
-        else:
-            if config.cost.method == "learned":
-                # the network's right-view cost is exactly the skewed left one: C_R(x, d) = C_L(x + d, d)
-                vol_r = refine.right_cost_from_left(vol, cost_mod.INVALID_COST, vw)
-            else:
-                vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
-            c_right = _view_chain(vol_r, right, left, config, "right", valid)[2]
-        disp_right = refine.wta(c_right)
-        out["confidence"] = refine.confidence(c_final, disp_wta, disp_right, config.refine.lr_tolerance)
-        labels = refine.lr_check(disp, disp_right.astype(jnp.float32), d, config.refine.lr_tolerance)
-        if mask is not None:    # padding never serves as a source of the filling
-            labels = jnp.where(mask, labels, refine.MISMATCH)
-        disp = refine.fill_disparity(disp, labels)
-        out.update(disp_right=disp_right, labels=labels, disp_filled=disp)
-    if "confidence" not in out:
-        out["confidence"] = refine.confidence(c_final, disp_wta, None)
-    if config.refine.subpixel:
-        disp = refine.subpixel(c_final, disp)
-        out["disp_subpixel"] = disp
-    disp = refine.median_filter(disp, config.refine.median_size)
-    out["disp_median"] = disp
-    r = config.refine
-    disp = refine.bilateral_filter(disp, left, r.bilateral_radius, r.bilateral_sigma_space,
-                                   r.bilateral_sigma_range)
-    out["disparity"] = jnp.clip(disp, 0.0, float(d - 1))
-    return out
+def chain_from_volume(vol, left: jax.Array, right: jax.Array, config: StereoConfig,
+                      keep: bool = False, valid=None, right_offset=None) -> dict[str, jax.Array]:
+    """Everything after the matching cost (:data:`stereojax.chain.STAGES`) on the left-view
+    volume: a :class:`~stereojax.volume.CostVolume`, or a full ``f32[H, W, D]`` array."""
+    if not isinstance(vol, CostVolume):
+        vol = CostVolume.full(vol, valid)
+    return chain_mod.run(vol, right_offset, left, right, config, keep)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
@@ -246,54 +190,62 @@ def _split_learned(config: StereoConfig, net) -> bool:
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
 def learned_front(left, right, valid, config: StereoConfig, variables=None, net=None):
-    """First program of the pruned learned chain: tower features of both views and the ranked
-    census candidates ``i32[H, W, K2]``."""
-    from .learned_cost import candidate_volume, rank_candidates, tower_features
+    """First program of the pruned learned chain: tower features of both views, the bands of
+    both views (None: full range) and the ranked census candidates ``i32[H, W, K2]``."""
+    from .learned_cost import ranked_candidates, tower_features
 
     fl, fr = tower_features(net, variables, left, right, valid)
-    return fl, fr, rank_candidates(candidate_volume(left, right, config, valid), config)
+    bands = chain_mod.bands(left, right, config, valid)
+    return fl, fr, ranked_candidates(left, right, config, bands[0], valid), bands
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
-def learned_back(left, right, valid, fl, fr, ranked, config: StereoConfig, variables=None, net=None,
+def learned_back(left, right, valid, fl, fr, ranked, bands, config: StereoConfig, variables=None, net=None,
                  confidence: bool = False):
     """Second program of the pruned learned chain: the head at the candidates, then CBCA, SGM
     and refinement; the disparity ``f32[H, W]``."""
-    from .learned_cost import ranked_dense_cost
+    from .learned_cost import band_volume
 
-    vol = ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid)
-    return _result(chain_from_volume(vol, left, right, config, False, valid), confidence)
+    vol = band_volume(net, variables, fl, fr, ranked, config, bands[0], valid)
+    return _result(chain_mod.run(vol, bands[1], left, right, config), confidence)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
 def _volume_padded(left, right, valid, config: StereoConfig, variables=None, net=None):
-    """The left-view matching cost ``f32[H, W, D]`` of a padded pair (the pruned learned cost in
-    two programs, as the chain runs it)."""
+    """(the left-view CostVolume, the right view's band offsets or None) of a padded pair (the
+    pruned learned cost in two programs, as the chain runs it)."""
     if not _split_learned(config, net):
-        return _left_volume(left, right, config, variables, net, valid)
-    from .learned_cost import ranked_dense_cost
+        off_l, off_r = chain_mod.bands(left, right, config, valid)
+        return _left_volume(left, right, config, variables, net, valid, off_l), off_r
+    from .learned_cost import band_volume
 
-    fl, fr, ranked = learned_front(left, right, valid, config, variables, net)
-    return ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid)
+    fl, fr, ranked, bands = learned_front(left, right, valid, config, variables, net)
+    return band_volume(net, variables, fl, fr, ranked, config, bands[0], valid), bands[1]
 
 
 @functools.partial(jax.jit, static_argnames=("config", "confidence"))
-def disparity_from_volume(vol, left, right, valid, config: StereoConfig, confidence: bool = False):
-    """Everything after the matching cost (:func:`chain_from_volume`) on a padded pair; the
-    disparity ``f32[H, W]`` of the bucket (crop it to ``valid``), and its confidence when asked."""
-    return _result(chain_from_volume(vol, left, right, config, False, valid), confidence)
+def disparity_from_volume(vol, right_offset, left, right, config: StereoConfig, confidence: bool = False):
+    """Everything after the matching cost (:func:`chain_from_volume`) on a padded pair's
+    CostVolume; the disparity ``f32[H, W]`` of the bucket (crop it to ``vol.valid``), and its
+    confidence when asked."""
+    return _result(chain_mod.run(vol, right_offset, left, right, config), confidence)
 
 
 @dataclass(frozen=True)
 class Volume:
     """A pair's left-view matching cost, kept to run the rest of the chain on it many times
-    (:meth:`Predictor.volume`): the cost ``f32[Hb, Wb, D]`` and the grey images ``f32[Hb, Wb]``,
-    padded to the size bucket, and ``valid`` = the real (rows, columns)."""
+    (:meth:`Predictor.volume`): the :class:`~stereojax.volume.CostVolume` (its ``valid`` = the
+    real (rows, columns)), the right view's band offsets (None: full range) and the grey images
+    ``f32[Hb, Wb]``, padded to the size bucket."""
 
-    cost: np.ndarray
+    cost: CostVolume
+    right_offset: Any
     left: np.ndarray
     right: np.ndarray
-    valid: np.ndarray
+
+    @property
+    def valid(self):
+        return np.asarray(self.cost.valid)
 
 
 def pad_to(grey: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -329,12 +281,12 @@ class CompiledChain:
         self._split = _split_learned(config, net)
         if self._split:
             self._front = learned_front.lower(spec, spec, valid, config, var_spec, net).compile()
-            fl, fr, ranked = jax.eval_shape(lambda a, b, v, w: learned_front(a, b, v, config, w, net),
-                                            spec, spec, valid, var_spec)
+            fl, fr, ranked, bands = jax.eval_shape(lambda a, b, v, w: learned_front(a, b, v, config, w, net),
+                                                   spec, spec, valid, var_spec)
             if sharding is not None:
-                fl, fr, ranked = (jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
-                                  for x in (fl, fr, ranked))
-            self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, config, var_spec, net,
+                fl, fr, ranked, bands = jax.tree_util.tree_map(
+                    lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), (fl, fr, ranked, bands))
+            self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, bands, config, var_spec, net,
                                             confidence).compile()
         else:
             self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net, confidence).compile()
@@ -348,8 +300,8 @@ class CompiledChain:
         lp, rp = pad_to(left, self.shape), pad_to(right, self.shape)
         lp, rp, valid = jax.device_put((lp, rp, np.array([h, w], np.int32)), self.device)
         if self._split:
-            fl, fr, ranked = self._front(lp, rp, valid, variables)
-            out = self._back(lp, rp, valid, fl, fr, ranked, variables)
+            fl, fr, ranked, bands = self._front(lp, rp, valid, variables)
+            out = self._back(lp, rp, valid, fl, fr, ranked, bands, variables)
         else:
             out = self._compiled(lp, rp, valid, variables)
         if self.confidence:
@@ -482,14 +434,18 @@ class Predictor:
         gl, gr = self.prepare(left, right)
         shape = bucket_shape(*gl.shape)
         lp, rp, valid = pad_to(gl, shape), pad_to(gr, shape), np.array(gl.shape, np.int32)
-        cost = _volume_padded(lp, rp, valid, self.config, self.variables, self.net)
-        return Volume(jax.device_get(cost), lp, rp, valid)
+        cost, right_offset = _volume_padded(lp, rp, valid, self.config, self.variables, self.net)
+        return Volume(jax.device_get(cost), jax.device_get(right_offset), lp, rp)
 
     def from_volume(self, volume: Volume) -> np.ndarray:
         """The disparity ``f32[H, W]`` of a pair from its :meth:`volume`, with this predictor's
         aggregation, SGM and refinement settings (the cost settings are the volume's). Each new
         setting compiles a program; ``disparity_from_volume.clear_cache()`` frees them."""
-        out = disparity_from_volume(volume.cost, volume.left, volume.right, volume.valid, self.config,
+        if volume.cost.banded != self.config.banded:
+            raise ConfigError("the volume's bands and this predictor's band.width differ (banded "
+                              f"{volume.cost.banded} vs {self.config.banded}); make the volume with "
+                              "the same band settings")
+        out = disparity_from_volume(volume.cost, volume.right_offset, volume.left, volume.right, self.config,
                                     self.confidence)
         h, w = volume.valid
         if self.confidence:
@@ -540,7 +496,7 @@ class Predictor:
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
 def _stages_grey(left, right, config, variables=None, net=None):
-    return _chain(left, right, config, variables, net, keep=True)
+    return _as_arrays(_chain(left, right, config, variables, net, keep=True))
 
 
 def _model_args(config: StereoConfig, params):
@@ -587,7 +543,8 @@ def stages(left: Any, right: Any, config: StereoConfig | None = None, params=Non
            memory_limit_gb=None) -> dict[str, np.ndarray]:
     """Every intermediate result of :func:`disparity` as numpy arrays.
 
-    Keys: cost, cost_cbca, cost_sgm, cost_final (``f32[H, W, D]``), disp_wta, disp_right,
+    Keys: cost, cost_cbca, cost_sgm, cost_final (``f32[H, W, D]``; banded chains: entries
+    outside a pixel's band are 1, and ``band_offset`` holds the bands), disp_wta, disp_right,
     labels (0 correct, 1 mismatch, 2 occlusion), disp_filled, disp_subpixel, disp_median,
     confidence, disparity. memory_limit_gb: as in :func:`disparity` (the estimate counts the kept volumes).
     """
@@ -596,3 +553,17 @@ def stages(left: Any, right: Any, config: StereoConfig | None = None, params=Non
     gl, gr = prepare_pair(left, right, config, memory_limit_gb, keep=True)
     out = _stages_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net)
     return {k: np.asarray(v) for k, v in out.items()}
+
+
+def _as_arrays(out: dict) -> dict:
+    """Volumes of the kept stages as full ``f32[H, W, D]`` arrays (entries outside a band: 1),
+    and the bands' offsets as ``band_offset`` when banded."""
+    res = {}
+    for k, v in out.items():
+        if isinstance(v, CostVolume):
+            res[k] = v.to_full(1.0)
+            if v.banded and k == "cost":
+                res["band_offset"] = v.offset
+        else:
+            res[k] = v
+    return res

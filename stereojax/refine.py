@@ -19,7 +19,7 @@ def wta(cost: jax.Array) -> jax.Array:
 
 
 def confidence(cost: jax.Array, disp_wta: jax.Array, disp_right: jax.Array | None,
-               lr_tolerance: float = 1.0) -> jax.Array:
+               lr_tolerance: float = 1.0, absolute=None) -> jax.Array:
     """Per-pixel confidence in [0, 1] of the winner-takes-all disparity, ``f32[H, W]``.
 
     The product of two terms: the *margin* of the aggregated cost ``f32[H, W, D]`` between its
@@ -27,7 +27,8 @@ def confidence(cost: jax.Array, disp_wta: jax.Array, disp_right: jax.Array | Non
     is as good; 1 when the winner costs nothing), and the *left-right agreement*
     ``exp(-max(|d1 - D_R(x - d1)| - lr_tolerance, 0))`` (1 where the two views agree, smaller
     the more they differ; 0.5 where the match x - d1 leaves the right image and cannot be
-    checked). Without a right view (``disp_right`` None) the margin alone."""
+    checked). Without a right view (``disp_right`` None) the margin alone. ``absolute``: the
+    absolute disparity of ``disp_wta`` when ``cost`` is a band (``disp_wta`` its index)."""
     h, w, max_disp = cost.shape
     d1 = disp_wta.astype(jnp.int32)
     c1 = jnp.take_along_axis(cost, d1[..., None], axis=-1)[..., 0]
@@ -37,6 +38,8 @@ def confidence(cost: jax.Array, disp_wta: jax.Array, disp_right: jax.Array | Non
     margin = jnp.where(c2 > 0, jnp.clip((c2 - c1) / jnp.maximum(c2, 1e-12), 0.0, 1.0), 0.0)
     if disp_right is None:
         return margin
+    if absolute is not None:
+        d1 = absolute.astype(jnp.int32)
     xr = jnp.arange(w)[None, :] - d1
     dr = jnp.take_along_axis(disp_right.astype(jnp.float32), jnp.clip(xr, 0, w - 1), axis=1)
     agree = jnp.exp(-jnp.maximum(jnp.abs(d1.astype(jnp.float32) - dr) - lr_tolerance, 0.0))
@@ -218,3 +221,62 @@ def bilateral_filter(disp: jax.Array, guide: jax.Array, radius: int, sigma_space
     # written as a correction of the centre value, so that constant regions stay exact
     d = _windows(disp, radius) - disp[None]
     return disp + (wgt * d).sum(0) / wgt.sum(0)
+
+
+# ---- per-pixel disparity bands (stereojax.volume.CostVolume) ---------------------------------
+
+def wta_volume(vol) -> jax.Array:
+    """``i32[H, W]`` winner-takes-all absolute disparity of a CostVolume (first minimum wins)."""
+    return wta(vol.cost) + (vol.offset if vol.banded else 0)
+
+
+def right_wta(vol, right_offset, invalid: float = 1.0) -> jax.Array:
+    """``i32[H, W]`` WTA disparity of the right view, from the left volume:
+    C_R(x, d) = C_L(x + d, d), for d in the right view's band ``[right_offset, right_offset + K)``
+    (full range: :func:`right_cost_from_left`). Entries with x + d beyond the real width get
+    ``invalid``, as in the full range; entries where d lies outside the left pixel's band get
+    :data:`~stereojax.volume.OUT_OF_BAND`."""
+    from .volume import OUT_OF_BAND
+
+    vw = None if vol.valid is None else vol.valid[1]
+    if not vol.banded:
+        return wta(right_cost_from_left(vol.cost, invalid, vw))
+    h, w, k = vol.cost.shape
+    width = w if vw is None else vw
+    d = right_offset[..., None] + jnp.arange(k, dtype=jnp.int32)               # [H, W, K]
+    xl = jnp.arange(w)[None, :, None] + d
+    in_image = xl < width
+    xl = jnp.clip(xl, 0, w - 1)
+    off_l = jnp.take_along_axis(vol.offset, xl.reshape(h, -1), axis=1).reshape(h, w, k)
+    j = d - off_l
+    in_band = (j >= 0) & (j < k)
+    flat = (xl * k + jnp.clip(j, 0, k - 1)).reshape(h, -1)
+    c = jnp.take_along_axis(vol.cost.reshape(h, w * k), flat, axis=1).reshape(h, w, k)
+    c = jnp.where(in_image, jnp.where(in_band, c, OUT_OF_BAND), invalid)
+    return wta(c) + right_offset
+
+
+def subpixel_volume(vol, disp: jax.Array) -> jax.Array:
+    """:func:`subpixel` on a CostVolume: the parabola through the costs at d - 1, d, d + 1 when
+    all three lie in the pixel's band (so not at a band's edge, nor at 0 or D - 1); elsewhere
+    the integer disparity."""
+    if not vol.banded:
+        return subpixel(vol.cost, disp)
+    k = vol.k
+    d = jnp.clip(jnp.round(disp).astype(jnp.int32), 0, vol.max_disp - 1)
+    j = d - vol.offset
+    take = lambda i: jnp.take_along_axis(vol.cost, jnp.clip(i, 0, k - 1)[..., None], axis=-1)[..., 0]
+    c0, cm, cp = take(j), take(j - 1), take(j + 1)
+    denom = cp - 2.0 * c0 + cm
+    ok = (j > 0) & (j < k - 1) & (denom > 1e-12)
+    offset = jnp.clip((cp - cm) / (2.0 * jnp.where(ok, denom, 1.0)), -0.5, 0.5)
+    return d.astype(jnp.float32) - jnp.where(ok, offset, 0.0)
+
+
+def confidence_volume(vol, disp_wta: jax.Array, disp_right, lr_tolerance: float = 1.0) -> jax.Array:
+    """:func:`confidence` on a CostVolume: the margin between the best entry of the band and the
+    best one at least 2 away within the band, times the left-right agreement."""
+    if not vol.banded:
+        return confidence(vol.cost, disp_wta, disp_right, lr_tolerance)
+    return confidence(vol.cost, disp_wta - vol.offset, None if disp_right is None else disp_right,
+                      lr_tolerance, absolute=disp_wta)

@@ -155,3 +155,128 @@ def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, real=None) -> j
             total = _row_path(cost, total, _gradient_big(left, dy, dx, thr), None, cfg, dy, shift=dx,
                               real=real)
     return total / cfg.directions
+
+
+# ---- per-pixel disparity bands ---------------------------------------------------------------
+# A pixel's costs cover its band [offset, offset + K). The recurrence reads the predecessor's
+# path costs at the same absolute disparities d - 1, d, d + 1 (index d - offset_prev); outside
+# the predecessor's band they are _BIG. min_k runs over the predecessor's band. A fresh start
+# (the first line of a path, a diagonal entering from the side, a predecessor in the padding)
+# is a predecessor of cost 0 with the pixel's own band, which gives L = C as in the full range.
+
+def _band_step(prev, prev_off, c, off, p1, p2):
+    """One banded SGM step: prev ``f32[N, K]`` with bands ``prev_off`` ``i32[N]``, the cost
+    ``c`` ``f32[N, K]`` with bands ``off``; returns the path cost ``f32[N, K]`` in ``off``'s bands."""
+    k = c.shape[-1]
+    m = prev.min(axis=-1, keepdims=True)
+    padded = jnp.pad(prev, ((0, 0), (1, 1)), constant_values=_BIG)        # index -1 and K: big
+    e = jnp.arange(k, dtype=jnp.int32)[None, :] + (off - prev_off)[:, None]
+
+    def at(i):
+        return jnp.take_along_axis(padded, jnp.clip(i, -1, k) + 1, axis=-1)
+
+    best = jnp.minimum(jnp.minimum(at(e), jnp.minimum(at(e - 1), at(e + 1)) + p1), m + p2)
+    return c + best - m
+
+
+def _match_big(big_right_line, x, disp):
+    """bool[N, K]: big_right at the match columns x - d (clipped to 0 as the cost is), for a
+    line of ``big_right_line`` bool[W] (x: i32[N, 1] or a scalar, disp: i32[N, K])."""
+    w = big_right_line.shape[-1]
+    return big_right_line[jnp.clip(x - disp, 0, w - 1)]
+
+
+def _band_row_path(vol, total, big_left, big_right, cfg, dy, shift=0, p1_scale=1.0, real=None):
+    cost, offset = vol.cost, vol.offset
+    h, w, k = cost.shape
+    r0, r1 = (0, h) if real is None else (real[0], real[1])
+    xs = jnp.arange(w)
+    ks = jnp.arange(k, dtype=jnp.int32)
+
+    def body(i, carry):
+        prev, poff, total = carry
+        y = r0 + i if dy == 1 else r1 - 1 - i
+        off_y = jax.lax.dynamic_index_in_dim(offset, y, 0, keepdims=False)          # [W]
+        if shift == 1:
+            prev = jnp.concatenate([jnp.zeros_like(prev[:1]), prev[:-1]], axis=0)
+            poff = jnp.concatenate([off_y[:1], poff[:-1]])
+        elif shift == -1:
+            prev = jnp.concatenate([prev[1:], jnp.zeros_like(prev[:1])], axis=0)
+            poff = jnp.concatenate([poff[1:], off_y[-1:]])
+        if shift:   # the first line starts afresh: the zero carry has the pixels' own bands
+            poff = jnp.where(i == 0, off_y, poff)
+        if real is not None and shift:
+            x_prev = xs - shift
+            fresh = (x_prev < real[2]) | (x_prev >= real[3])
+            prev = jnp.where(fresh[:, None], 0.0, prev)
+            poff = jnp.where(fresh, off_y, poff)
+        bl = jax.lax.dynamic_index_in_dim(big_left, y, 0, keepdims=False)
+        br = None
+        if big_right is not None:
+            line = jax.lax.dynamic_index_in_dim(big_right, y, 0, keepdims=False)
+            br = _match_big(line, xs[:, None], off_y[:, None] + ks)
+        c = jax.lax.dynamic_index_in_dim(cost, y, 0, keepdims=False)
+        out = _band_step(prev, poff, c, off_y, *_penalties(cfg, bl, br, p1_scale))
+        line = jax.lax.dynamic_index_in_dim(total, y, 0, keepdims=False)
+        return out, off_y, jax.lax.dynamic_update_index_in_dim(total, line + out, y, 0)
+
+    y_first = r0 if dy == 1 else r1 - 1
+    init_off = jax.lax.dynamic_index_in_dim(offset, y_first, 0, keepdims=False)
+    init = (jnp.zeros((w, k), cost.dtype), init_off, total)
+    return jax.lax.fori_loop(0, r1 - r0, body, init)[2]
+
+
+def _band_column_path(vol, total, big_left, big_right, cfg, dx, real=None):
+    cost, offset = vol.cost, vol.offset
+    h, w, k = cost.shape
+    c0, c1 = (0, w) if real is None else (real[2], real[3])
+    ks = jnp.arange(k, dtype=jnp.int32)
+
+    def body(i, carry):
+        prev, poff, total = carry
+        x = c0 + i if dx == 1 else c1 - 1 - i
+        off_x = jax.lax.dynamic_index_in_dim(offset, x, 1, keepdims=False)          # [H]
+        bl = jax.lax.dynamic_index_in_dim(big_left, x, 1, keepdims=False)
+        br = None
+        if big_right is not None:
+            cols = jnp.clip(x - (off_x[:, None] + ks), 0, w - 1)                      # [H, K]
+            br = jnp.take_along_axis(big_right, cols, axis=1)
+        c = jax.lax.dynamic_index_in_dim(cost, x, 1, keepdims=False)
+        out = _band_step(prev, poff, c, off_x, *_penalties(cfg, bl, br))
+        line = jax.lax.dynamic_index_in_dim(total, x, 1, keepdims=False)
+        return out, off_x, jax.lax.dynamic_update_index_in_dim(total, line + out, x, 1)
+
+    x_first = c0 if dx == 1 else c1 - 1
+    init_off = jax.lax.dynamic_index_in_dim(offset, x_first, 1, keepdims=False)
+    init = (jnp.zeros((h, k), cost.dtype), init_off, total)
+    return jax.lax.fori_loop(0, c1 - c0, body, init)[2]
+
+
+def sgm_volume(vol, left: jax.Array, right: jax.Array, cfg):
+    """SGM of a :class:`~stereojax.volume.CostVolume` (left view); returns one with the same bands.
+
+    Full range: :func:`sgm`. Bands: see the comment above :func:`_band_step`; a band covering
+    the whole range gives :func:`sgm`. The paths run over the volume's real pixels only.
+    """
+    if cfg.directions == 0:
+        return vol
+    real = None if vol.valid is None else (0, vol.valid[0], 0, vol.valid[1])
+    if not vol.banded:
+        return vol.with_cost(sgm(vol.cost, left, right, cfg, real))
+    thr = cfg.grad_threshold
+
+    def right_big(dy, dx):
+        return _gradient_big(right, dy, dx, thr) if cfg.adaptive else None
+
+    total = jnp.zeros_like(vol.cost)
+    for dx in (1, -1):
+        total = _band_column_path(vol, total, _gradient_big(left, 0, dx, thr), right_big(0, dx), cfg, dx,
+                                  real=real)
+    for dy in (1, -1):
+        total = _band_row_path(vol, total, _gradient_big(left, dy, 0, thr), right_big(dy, 0), cfg, dy,
+                               p1_scale=cfg.vertical_factor, real=real)
+    if cfg.directions == 8:
+        for dy, dx in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+            total = _band_row_path(vol, total, _gradient_big(left, dy, dx, thr), None, cfg, dy, shift=dx,
+                                   real=real)
+    return vol.with_cost(total / cfg.directions)

@@ -1,0 +1,183 @@
+"""The method's chain, written once: bands -> matching cost -> CBCA -> SGM -> CBCA -> WTA ->
+right view and left-right check -> filling -> confidence -> sub-pixel -> median -> bilateral.
+
+Every stage after the matching cost takes and returns a state dict whose volume is a
+:class:`~stereojax.volume.CostVolume` (full range or per-pixel bands, see
+:mod:`stereojax.volume`); :data:`STAGES` lists them in order, :func:`run` runs them, and
+``stereojax bench`` times the same list one stage at a time. The front of the chain (the
+coarse pass that sets the bands, and the matching cost in those bands) is
+:func:`bands` + :func:`classic_volume` here, or the learned cost of
+:mod:`stereojax.learned_cost`.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+
+from . import aggregation, coarse, cost as cost_mod, refine
+from .compile_cache import real_pixels
+from .sgm import sgm, sgm_volume
+from .volume import CostVolume
+
+
+# ---- front: bands and the classical matching cost -------------------------------------------
+
+def bands(left: jax.Array, right: jax.Array, config, valid=None):
+    """(left offsets, right offsets) ``i32[H, W]`` from the coarse pass when the config is
+    banded (:mod:`stereojax.coarse`), else (None, None): the full range."""
+    if not config.banded:
+        return None, None
+    return coarse.bands(left, right, config, valid)
+
+
+def classic_volume(left: jax.Array, right: jax.Array, config, offsets, valid=None) -> CostVolume:
+    """The census or SAD cost of the left view in the bands ``offsets`` (None: full range)."""
+    if offsets is None:
+        return CostVolume.full(cost_mod.matching_cost(left, right, config.max_disp, config.cost, "left"), valid)
+    return cost_mod.band_cost(left, right, offsets, config.band.width, config.max_disp, config.cost, valid)
+
+
+# ---- the stages after the matching cost -----------------------------------------------------
+
+def _arms(st, config):
+    mask = real_pixels(st["left"].shape, st["vol"].valid)
+    st["arms"] = aggregation.cross_arms(st["left"], config.cbca.tau, config.cbca.arm_length, mask)
+    return st
+
+
+def _neutral(st, config):
+    if config.cost.border == "neutral":
+        st["vol"] = cost_mod.neutral_border_volume(st["vol"])
+    return st
+
+
+def _cbca_before(st, config):
+    st["vol"] = st["cost_cbca"] = aggregation.cbca_volume(st["vol"], st["arms"], config.cbca.iterations_before,
+                                                          config.cbca.arm_length)
+    return st
+
+
+def _sgm(st, config):
+    st["vol"] = st["cost_sgm"] = sgm_volume(st["vol"], st["left"], st["right"], config.sgm)
+    return st
+
+
+def _cbca_after(st, config):
+    st["vol"] = st["cost_final"] = aggregation.cbca_volume(st["vol"], st["arms"], config.cbca.iterations_after,
+                                                           config.cbca.arm_length)
+    return st
+
+
+def _wta(st, config):
+    st["disp_wta"] = refine.wta_volume(st["vol"])
+    st["disp"] = st["disp_wta"].astype(jnp.float32)
+    return st
+
+
+def _right_view(st, config):
+    if not config.refine.lr_check:
+        return st
+    vol = st["vol"]
+    if config.refine.right_from_left:
+        st["disp_right"] = refine.right_wta(vol, st["right_offset"], cost_mod.INVALID_COST)
+    else:                      # full range only (config.validate): the right view aggregated on its own
+        st["disp_right"] = refine.wta(_right_chain(st, config))
+    return st
+
+
+def _right_chain(st, config):
+    """CBCA -> SGM -> CBCA of the right view's own full volume (``refine.right_from_left`` off)."""
+    left, right, valid = st["left"], st["right"], st["vol"].valid
+    d = config.max_disp
+    if config.cost.method == "learned":
+        # the network's right-view cost is exactly the skewed left one: C_R(x, d) = C_L(x + d, d)
+        vol_r = refine.right_cost_from_left(st["cost"].cost, cost_mod.INVALID_COST,
+                                            None if valid is None else valid[1])
+    else:
+        vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
+    w = left.shape[1]
+    arms = aggregation.cross_arms(right, config.cbca.tau, config.cbca.arm_length, real_pixels(right.shape, valid))
+    c1 = aggregation.cbca(vol_r, arms, config.cbca.iterations_before, config.cbca.arm_length)
+    # mirrored (x -> W - 1 - x turns "match at x + d" into "match at x' - d"), padding on the left
+    real = None if valid is None else (0, valid[0], w - valid[1], w)
+    c2 = sgm(c1[:, ::-1], right[:, ::-1], left[:, ::-1], config.sgm, real)[:, ::-1]
+    return aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
+
+
+def _lr_fill(st, config):
+    if not config.refine.lr_check:
+        return st
+    labels = refine.lr_check(st["disp"], st["disp_right"].astype(jnp.float32), config.max_disp,
+                             config.refine.lr_tolerance)
+    mask = st["vol"].real_mask()
+    if mask is not None:    # padding never serves as a source of the filling
+        labels = jnp.where(mask, labels, refine.MISMATCH)
+    st["labels"] = labels
+    st["disp"] = st["disp_filled"] = refine.fill_disparity(st["disp"], labels)
+    return st
+
+
+def _confidence(st, config):
+    st["confidence"] = refine.confidence_volume(st["vol"], st["disp_wta"], st.get("disp_right"),
+                                                config.refine.lr_tolerance)
+    return st
+
+
+def _subpixel(st, config):
+    if config.refine.subpixel:
+        st["disp"] = st["disp_subpixel"] = refine.subpixel_volume(st["vol"], st["disp"])
+    return st
+
+
+def _median(st, config):
+    st["disp"] = st["disp_median"] = refine.median_filter(st["disp"], config.refine.median_size)
+    return st
+
+
+def _bilateral(st, config):
+    r = config.refine
+    disp = refine.bilateral_filter(st["disp"], st["left"], r.bilateral_radius, r.bilateral_sigma_space,
+                                   r.bilateral_sigma_range)
+    st["disparity"] = jnp.clip(disp, 0.0, float(config.max_disp - 1))
+    return st
+
+
+#: the stages after the matching cost, in order: (name, stage(state, config) -> state)
+STAGES: list[tuple[str, Callable]] = [
+    ("cross arms", _arms),
+    ("neutral out-of-view strip", _neutral),
+    ("CBCA before SGM", _cbca_before),
+    ("SGM", _sgm),
+    ("CBCA after SGM", _cbca_after),
+    ("WTA", _wta),
+    ("right view + WTA", _right_view),
+    ("left-right check + filling", _lr_fill),
+    ("confidence", _confidence),
+    ("sub-pixel", _subpixel),
+    ("median", _median),
+    ("bilateral", _bilateral),
+]
+
+#: state entries :func:`run` returns when asked to keep every intermediate result
+KEPT = ("cost", "cost_cbca", "cost_sgm", "cost_final", "disp_wta", "disp_right", "labels",
+        "disp_filled", "disp_subpixel", "disp_median", "confidence", "disparity")
+
+
+def initial_state(vol: CostVolume, right_offset, left, right) -> dict:
+    if right_offset is None:
+        right_offset = jnp.zeros(vol.shape, jnp.int32)
+    return {"vol": vol, "cost": vol, "right_offset": right_offset, "left": left, "right": right}
+
+
+def run(vol: CostVolume, right_offset, left, right, config, keep: bool = False) -> dict:
+    """Every stage of :data:`STAGES` on the left-view volume; returns ``disparity``,
+    ``confidence`` and ``disp_wta`` (``keep``: every entry of :data:`KEPT`, volumes as
+    CostVolumes)."""
+    st = initial_state(vol, right_offset, left, right)
+    for _, stage in STAGES:
+        st = stage(st, config)
+    names = KEPT if keep else ("disp_wta", "confidence", "disparity")
+    return {k: st[k] for k in names if k in st}
