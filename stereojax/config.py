@@ -330,12 +330,16 @@ def preset(name: str, max_disp: int = 228) -> StereoConfig:
     """Named pipeline settings, tuned on KITTI 2015 training frames 000001-000019 (odd), see
     experiments/results/tuning.md: "census" (the defaults of StereoConfig) and "sad"."""
     max_disp = _as_int(max_disp)
+    # per-pixel bands of 48 disparities from a half-resolution coarse pass, chosen on training
+    # frames 000001-000019 (odd) by the rule of experiments/PROTOCOL.md ("Bands"):
+    # experiments/results/band_search_census.md; band=BandConfig() is the full-range chain
+    band = BandConfig(width=48, scale=2, radius=1, unsure_radius=3, margin=3)
     presets = {
-        "census": StereoConfig(max_disp=max_disp),
+        "census": StereoConfig(max_disp=max_disp, band=band),
         "sad": StereoConfig(
             max_disp=max_disp,
             cost=CostConfig(method="sad", sad_radius=3),
-            sgm=SGMConfig(p1=0.2, p2=3.2),
+            sgm=SGMConfig(p1=0.2, p2=3.2), band=band,
         ),
     }
     # learned cost (1 - similarity): CBCA/SGM from a preliminary setting of 4 configurations on
@@ -348,7 +352,7 @@ def preset(name: str, max_disp: int = 228) -> StereoConfig:
         max_disp=max_disp,
         cost=CostConfig(method="learned", candidates=min(6, max_disp), unsure_share=0.2,
                         unsure_candidates=min(16, max_disp)),
-        cbca=AggregationConfig(iterations_before=2), sgm=SGMConfig(p1=0.5, p2=8.0))
+        cbca=AggregationConfig(iterations_before=2), sgm=SGMConfig(p1=0.5, p2=8.0), band=band)
     if name not in presets:
         raise ConfigError(f"unknown preset {name!r}; choose one of {sorted(presets)}")
     return presets[name].validate()

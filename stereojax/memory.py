@@ -66,9 +66,29 @@ def volumes(config, keep: bool = False) -> float:
     return n
 
 
+#: full ``f32[H, W, D]`` volumes a banded chain still builds: ``stages()`` returns its four
+#: volumes at full size (for inspection); SAD is computed over the full range, then cut to bands.
+FULL_VOLUMES_BANDED_STAGES = 4.0
+FULL_VOLUMES_BANDED_SAD = 2.0
+
+
+def volume_disparities(config) -> int:
+    """The last axis of the chain's volumes: the band width K when banded, else D."""
+    return config.band.width if config.banded else config.max_disp
+
+
 def chain_peak_bytes(height: int, width: int, config, keep: bool = False) -> int:
-    """Estimated peak memory (bytes) of the chain on an ``height × width`` frame."""
-    return int(volumes(config, keep) * height * width * config.max_disp * 4) + OVERHEAD
+    """Estimated peak memory (bytes) of the chain on an ``height × width`` frame: its volumes
+    count ``H · W · K`` (K the band width; D for the full-range chain), plus the coarse pass's
+    ``(H / s) · (W / s) · (D / s)`` volumes of a banded chain."""
+    if not config.banded:
+        return int(volumes(config, keep) * height * width * config.max_disp * 4) + OVERHEAD
+    k, s = config.band.width, config.band.scale
+    band = volumes(config, False) * height * width * k * 4
+    coarse = VOLUMES * -(-height // s) * -(-width // s) * -(-config.max_disp // s) * 4
+    full = (FULL_VOLUMES_BANDED_STAGES if keep else 0.0) + \
+        (FULL_VOLUMES_BANDED_SAD if config.cost.method == "sad" else 0.0)
+    return int(band + coarse + full * height * width * config.max_disp * 4) + OVERHEAD
 
 
 def _proc_bytes(path: str, key: str) -> int | None:
@@ -173,6 +193,11 @@ def check_memory(height: int, width: int, config, limit_gb=None, keep: bool = Fa
     if need <= limit:
         return need
     per_disp = volumes(config, keep) * height * width * 4
+    if config.banded:
+        raise MemoryBudgetError(
+            f"a {height}x{width} frame with {config.max_disp} disparities in bands of {config.band.width} "
+            f"needs about {need / GIB:.1f} GiB, more than the limit of {limit / GIB:.1f} GiB ({source}); "
+            f"use narrower bands (band.width), downscale the pair, or set {ENV_VAR} to raise the limit")
     fit_disp = int((limit - OVERHEAD) // per_disp) if limit > OVERHEAD else 0
     # downscale factor s (both axes) so that the volumes fit with D / s disparities
     scale = 2
