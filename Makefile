@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate bench train train-middlebury \
-        search-chain middlebury-folds augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain band-search middlebury-folds augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -55,6 +55,9 @@ evaluate: $(STAMP)  ## [DATA=../shared/data DATASET=kitti2015|kitti2012|middlebu
 
 bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS -> experiments/results/bench.{json,md}
 	$(CLI) bench --data $(DATA) --out experiments/results
+
+band-search: $(STAMP)  ## band settings (width, coarse scale, widening) on KITTI 2015 000001-000019 (odd): coverage, > 3 px and time beside the full range (~10 min) -> experiments/results/band_search_census.*
+	$(PY) experiments/band_search.py --data $(DATA) --method census
 
 ANCHORS_VENV ?= .venv-anchors
 bench-anchors: $(STAMP)  ## optional: CNES Pandora (MC-CNN + libsgm) in its own venv, timed on the bench frame beside best and SGBM (~5 min with the install) -> experiments/results/anchors.*

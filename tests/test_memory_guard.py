@@ -18,10 +18,34 @@ from .robustness_helpers import _cli, _one_line, _record
 
 # ---- memory guard ------------------------------------------------------------------------------
 
+def _full_range(cfg):
+    """The full-range chain of a preset (band.width 0), which the calibration below is of."""
+    import dataclasses
+
+    from stereojax.config import BandConfig
+
+    return dataclasses.replace(cfg, band=BandConfig()).validate()
+
+
 def test_memory_estimate_is_calibrated_on_the_kitti_frame():
-    # README / make bench: 1242x375, 228 disparities, census chain peaks at ~2.7 GiB
-    est = memory.chain_peak_bytes(375, 1242, stereojax.preset("census", 228)) / memory.GIB
+    # full-range census chain, 1242x375, 228 disparities: measured peak ~2.7 GiB
+    est = memory.chain_peak_bytes(375, 1242, _full_range(stereojax.preset("census", 228))) / memory.GIB
     assert 2.4 < est < 3.0, est
+
+
+def test_memory_estimate_of_a_banded_chain_counts_the_band():
+    """H*W*K, not H*W*D: the banded estimate grows with the band width, not with the range (the
+    coarse pass's small volumes aside), and a 6 MP pair with 282 disparities fits 16 GiB whole."""
+    import dataclasses
+
+    cfg = stereojax.preset("census", 228)
+    assert cfg.banded
+    band = memory.chain_peak_bytes(375, 1242, cfg)
+    assert band < 0.5 * memory.chain_peak_bytes(375, 1242, _full_range(cfg))
+    wide = memory.chain_peak_bytes(375, 1242, dataclasses.replace(cfg, max_disp=456))
+    per_disp_full = memory.VOLUMES * 375 * 1242 * 4
+    assert wide - band < 0.2 * per_disp_full * 228      # doubling D adds only the coarse pass
+    assert memory.chain_peak_bytes(2012, 2982, stereojax.preset("census", 282)) < 0.7 * 16 * memory.GIB
 
 
 def test_memory_guard_refuses_a_4k_pair_before_allocating(monkeypatch):
@@ -36,7 +60,7 @@ def test_memory_guard_refuses_a_4k_pair_before_allocating(monkeypatch):
     monkeypatch.setattr(pipeline, "disparity_grey", never)      # disparity(bucket=False)
     monkeypatch.setattr(pipeline, "_stages_grey", never)        # stages()
     left = np.zeros((2160, 3840), np.uint8)
-    cfg = stereojax.preset("census", 228)
+    cfg = _full_range(stereojax.preset("census", 228))
     with pytest.raises(MemoryBudgetError) as exc:
         stereojax.disparity(left, left, cfg)
     msg = str(exc.value)

@@ -51,9 +51,20 @@ def test_stitching_takes_each_row_from_its_band():
 
 
 @pytest.mark.skipif(not (DATA / "kitti2015").is_dir(), reason=f"real data not found at {DATA}")
-def test_tiled_equals_whole_frame_away_from_the_seams_on_a_real_pair():
+@pytest.mark.parametrize("banded,tolerance", [(False, 0.15), (True, 0.3)])
+def test_tiled_equals_whole_frame_away_from_the_seams_on_a_real_pair(banded, tolerance):
+    """Full range: within 0.15 points > 3 px (tiling.md). Banded: each band's coarse pass sees
+    only that band's rows, so its disparity bands differ near the seams; measured 0.19 points
+    on this pair with 160-row bands (2026-12-01), hence the wider tolerance."""
+    import dataclasses
+
+    from stereojax.config import BandConfig
+
     s = stereojax.data.load_dataset(DATA, "kitti2015", ["000021"], gt="noc")[0][1]()
     cfg = stereojax.preset("census", 128)
+    if not banded:
+        cfg = dataclasses.replace(cfg, band=BandConfig())
+    assert cfg.banded == banded
     predict = stereojax.Predictor(cfg)
     whole = predict(s.left, s.right)
     rows = 160
@@ -68,7 +79,7 @@ def test_tiled_equals_whole_frame_away_from_the_seams_on_a_real_pair():
     assert differ[dist >= 32].mean() < 0.005
     assert differ.mean() < 0.02
     b_whole = evaluate(whole, s.gt, s.gt_valid)["bad3"]
-    assert abs(evaluate(tiled, s.gt, s.gt_valid)["bad3"] - b_whole) < 0.15
+    assert abs(evaluate(tiled, s.gt, s.gt_valid)["bad3"] - b_whole) < tolerance
 
 
 def test_a_pair_over_the_memory_limit_runs_in_bands_or_is_refused(tmp_path, capsys, monkeypatch):
