@@ -55,12 +55,15 @@ def frame_key_of_run(run) -> dict:
             "weights_sha256": _sha256(run.weights), "config": run.config.to_dict()}
 
 
-def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: float = 0.0) -> dict:
+def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: float = 0.0,
+                 disp_range=None) -> dict:
     """What a frame's outputs depend on: :func:`frame_key_of_run`, the calibration, the
-    point-cloud option, the confidence threshold and the two input files."""
+    point-cloud option, the confidence threshold, the disparity-range option (None, [MIN, MAX]
+    or "auto") and the two input files."""
+    rng = list(disp_range) if isinstance(disp_range, (tuple, list)) else disp_range
     return {**frame_key_of_run(run),
             "calib": dataclasses.asdict(calib) if calib is not None else None, "ply": bool(ply),
-            "min_confidence": float(min_confidence),
+            "min_confidence": float(min_confidence), "disp_range": rng,
             "left": _file_id(left_path), "right": _file_id(right_path)}
 
 
@@ -73,13 +76,14 @@ def is_complete(target: Path, record: dict) -> bool:
     outputs = stored.pop("outputs", None)
     stored.pop("timings", None)
     stored.pop("size", None)
+    stored.pop("disp_range_used", None)
     return stored == json.loads(json.dumps(record)) and isinstance(outputs, list) \
         and all((target / name).is_file() for name in outputs)
 
 
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
                  phases=None, record: bool = False, min_confidence: float = 0.0,
-                 check_rectified: str = "warn", tile: str = "auto") -> dict:
+                 check_rectified: str = "warn", tile: str = "auto", disp_range=None) -> dict:
     """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``,
     with its confidence map (``confidence.png``, ``confidence.npy``); pixels whose confidence
     is below ``min_confidence`` have no disparity and no depth (0 in the PNGs).
@@ -89,6 +93,9 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     look rectified or looks swapped, :func:`stereojax.rectification.check_rectified`), "error"
     (a :class:`~stereojax.errors.StereoInputError` instead) or "off". With ``calib``, a median
     depth outside 0.1-1000 m is warned about (:func:`stereojax.calibration.plausibility_warnings`).
+    disp_range: None (0 .. max_disp - 1), (MIN, MAX) (MIN <= d < MAX) or "auto" (from the feature
+    matches of the rectification check, :func:`stereojax.rectification.auto_disp_range`; the
+    range used is printed by the CLI and written to ``timings.json`` and ``frame.json``).
 
     resolve(width, height) -> :class:`stereojax.models.Resolved` says what runs for this input.
     record: also write ``frame.json`` (what the frame was made with, and its files) last.
@@ -99,11 +106,18 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     from .pipeline import Predictor
 
     sample = load_pair(left_path, right_path)
-    _check_rectified(sample, check_rectified)
+    check = _check_rectified(sample, check_rectified, need=disp_range == "auto")
+    used = _disp_range(disp_range, check, sample.left.shape[1])
+    if disp_range == "auto" and phases is not None and not getattr(phases, "quiet", False):
+        print(f"disparity range auto: {used[0]} <= d < {used[1]} (from {check.matches} feature matches, "
+              f"1st-99th percentile {check.disparity_p1:.1f}..{check.disparity_p99:.1f} px, widened)", file=sys.stderr)
     run = resolve(sample.left.shape[1], sample.left.shape[0])
     cfg = run.config
-    (disp, conf), timings = Predictor(cfg, run.model(), current_device(), confidence=True, tile=tile).timed(
-        sample.left, sample.right, phases)
+    predictor = Predictor(cfg, run.model(), current_device(), confidence=True, tile=tile, disp_range=used)
+    cfg = predictor.config
+    (disp, conf), timings = predictor.timed(sample.left, sample.right, phases)
+    if used is not None:
+        timings = {**timings, "disp_range": list(used)}
     disp = blank_unconfident(disp, conf, min_confidence)
     target.mkdir(parents=True, exist_ok=True)
     written = write_prediction(target, "", disp, calib, sample.left, ply=ply) + write_confidence(target, "", conf)
@@ -115,24 +129,43 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
                                          "chosen": run.description})
     written += ["config.json", "timings.json"]
     if record:
-        write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence),
+        write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence,
+                                                      disp_range),
+                                       "disp_range_used": None if used is None else list(used),
                                        "size": list(disp.shape), "outputs": written, "timings": timings})
     return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run}
 
 
-def _check_rectified(sample, mode: str) -> None:
+def _check_rectified(sample, mode: str, need: bool = False):
+    """The rectification check of a pair (None when off and not ``need``ed for an auto range)."""
     import warnings
 
     from .errors import InputWarning, StereoInputError
     from .rectification import check_rectified
 
-    if mode == "off":
-        return
-    problem = check_rectified(sample.left, sample.right).problem
+    if mode == "off" and not need:
+        return None
+    check = check_rectified(sample.left, sample.right)
+    problem = check.problem if mode != "off" else None
     if problem and mode == "error":
         raise StereoInputError(problem)
     if problem:
         warnings.warn(problem, InputWarning, stacklevel=3)
+    return check
+
+
+def _disp_range(option, check, width: int):
+    """The (MIN, MAX) a pair runs with: the option's, or the feature matches' for "auto"."""
+    if option != "auto":
+        return option
+    from .errors import StereoInputError
+    from .rectification import auto_disp_range
+
+    found = auto_disp_range(check, width)
+    if found is None:
+        raise StereoInputError(f"--disp-range auto found too few feature matches ({check.matches}) to tell the "
+                               "disparity range; give --disp-range MIN MAX or --max-disp")
+    return found
 
 
 def _check_depth(disp, calib) -> None:
@@ -177,7 +210,7 @@ def _reusable(pair, out: Path, resolve, opts: dict) -> bool:
             return False
         height, width = stored["size"]
         record = frame_record(resolve(width, height), opts["calib"], opts["ply"], left_p, right_p,
-                              opts["min_confidence"])
+                              opts["min_confidence"], opts.get("disp_range"))
         return is_complete(out / name, record)
     except (StereoError, OSError, ValueError, KeyError, TypeError):
         return False
@@ -185,7 +218,7 @@ def _reusable(pair, out: Path, resolve, opts: dict) -> bool:
 
 def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = False,
                   devices: list | None = None, overwrite: bool = False, min_confidence: float = 0.0,
-                  check_rectified: str = "warn", tile: str = "auto") -> dict:
+                  check_rectified: str = "warn", tile: str = "auto", disp_range=None) -> dict:
     """Every ``(name, left, right)`` pair into ``out/<name>/``: frames already complete with
     this run's settings are skipped (all computed with ``overwrite``), one compiled chain per
     size bucket, a progress bar with frames/s and the time left, one line per failed pair (the
@@ -200,7 +233,8 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     from .memory import current_rss_bytes, peak_rss_bytes
 
     devices = list(devices or [])
-    opts = dict(calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile)
+    opts = dict(calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile,
+                disp_range=disp_range)
     for stale in [*out.glob(f".*{_PARTIAL}*"), *out.glob(".*.old-*")]:          # left by a killed run
         shutil.rmtree(stale, ignore_errors=True)
     skipped = [] if overwrite else [p[0] for p in pairs if _reusable(p, out, resolve, opts)]
@@ -264,7 +298,9 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
 def pair_line(r: dict, out: Path) -> str:
     """The line ``stereojax predict`` prints after one pair (:func:`predict_pair`'s result)."""
     disp, timings = r["disparity"], r["timings"]
-    return (f"disparity {disp.shape[1]}x{disp.shape[0]} ({r['run'].description}), {timings['seconds']:.2f} s "
+    rng = timings.get("disp_range")
+    span = f", disparities {rng[0]} <= d < {rng[1]}" if rng else ""
+    return (f"disparity {disp.shape[1]}x{disp.shape[0]} ({r['run'].description}{span}), {timings['seconds']:.2f} s "
             f"(+ {timings['compile_s']:.1f} s compiling) -> {out} ({', '.join(r['written'])})")
 
 

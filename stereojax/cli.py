@@ -47,6 +47,24 @@ def _calibration(args):
     return calib
 
 
+def _disp_range_arg(values):
+    """``--disp-range MIN MAX`` -> (MIN, MAX); ``--disp-range auto`` -> "auto"; absent -> None."""
+    from .errors import StereoInputError
+    from .pipeline import check_disp_range
+
+    if values is None:
+        return None
+    if values == ["auto"]:
+        return "auto"
+    if len(values) != 2:
+        raise StereoInputError(f"--disp-range takes MIN MAX or auto, got {' '.join(values)!r}")
+    try:
+        nums = [int(v) for v in values]
+    except ValueError:
+        raise StereoInputError(f"--disp-range takes two integers MIN MAX (or auto), got {' '.join(values)!r}") from None
+    return check_disp_range(tuple(nums))
+
+
 # ---- commands ----------------------------------------------------------------------------------
 
 def cmd_predict(args) -> int:
@@ -62,7 +80,7 @@ def cmd_predict(args) -> int:
     enable()
 
     opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified,
-                tile=args.tile)
+                tile=args.tile, disp_range=_disp_range_arg(args.disp_range))
     resolve = lambda w, h: _resolve(args, w, h)  # noqa: E731
     if not batch:
         print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
@@ -183,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--pairs", help="text file with one 'LEFT RIGHT' pair per line")
     sp.add_argument("--out", required=True, help="output folder (a batch writes OUT/<frame>/...)")
     sp.add_argument("--max-disp", type=int, default=DEFAULT_MAX_DISP, help="number of disparities (default 228)")
+    sp.add_argument("--disp-range", nargs="+", metavar="MIN MAX|auto", help="search the disparities MIN <= d < MAX "
+                    "instead of 0 .. max-disp - 1 (MIN may be negative); auto: from the feature matches of the "
+                    "rectification check, printed and written to frame.json")
     sp.add_argument("--baseline", type=float, help="baseline in metres (for depth)")
     sp.add_argument("--focal", type=float, help="focal length in pixels (for depth)")
     sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import chain as chain_mod
-from .config import StereoConfig
+from .config import StereoConfig, preset
 from .errors import ConfigError, StereoInputError
 from .volume import CostVolume
 
@@ -83,6 +83,40 @@ def min_image_size(config: StereoConfig) -> int:
     windows = [2 * max(c.census_radius) + 1, 2 * c.sad_radius + 1, config.refine.median_size,
                2 * config.refine.bilateral_radius + 1, 2 * config.cbca.arm_length + 1]
     return max(windows)
+
+
+def check_disp_range(disp_range, width: int | None = None) -> tuple[int, int] | None:
+    """``(MIN, MAX)`` as ints (disparities MIN <= d < MAX), or None; a one-line
+    :class:`StereoInputError` for anything else: not two integers, MIN >= MAX, or (given the
+    image ``width``) a range at least as wide as the image."""
+    if disp_range is None:
+        return None
+    import numbers
+
+    try:
+        lo, hi = disp_range
+    except (TypeError, ValueError):
+        raise StereoInputError(f"disp_range must be two integers (MIN, MAX), got {disp_range!r}") from None
+    for v in (lo, hi):
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise StereoInputError(f"disp_range must be two integers (MIN, MAX), got {disp_range!r}")
+    lo, hi = int(lo), int(hi)
+    if lo >= hi:
+        raise StereoInputError(f"disp_range MIN must be below MAX (disparities MIN <= d < MAX), got {lo} {hi}")
+    if width is not None and hi - lo >= width:
+        raise StereoInputError(f"disp_range {lo}..{hi} spans {hi - lo} disparities, as many as the image is wide "
+                               f"({width}); give a narrower range")
+    return lo, hi
+
+
+def shift_right_image(grey: np.ndarray, lo: int) -> np.ndarray:
+    """The right image moved by ``lo`` columns, edges repeated: out[:, u] = grey[:, u - lo], so that
+    disparity d of the original pair is disparity d - lo of (left, out)."""
+    if lo == 0:
+        return grey
+    w = grey.shape[1]
+    cols = np.clip(np.arange(w) - lo, 0, w - 1)
+    return np.ascontiguousarray(grey[:, cols])
 
 
 def _kind(arr: np.ndarray) -> str:
@@ -363,8 +397,12 @@ class Predictor:
     """
 
     def __init__(self, config: StereoConfig | None = None, model=None, device=None, memory_limit_gb=None,
-                 confidence: bool = False, tile: str = "off"):
-        self.config = (config or StereoConfig()).validate()
+                 confidence: bool = False, tile: str = "off", disp_range=None):
+        self.disp_range = check_disp_range(disp_range)
+        config = (config or preset("census")).validate()
+        if self.disp_range is not None:      # MIN <= d < MAX: the chain runs over MAX - MIN disparities
+            config = config.with_max_disp(self.disp_range[1] - self.disp_range[0])
+        self.config = config
         self.confidence = bool(confidence)
         if tile not in ("off", "auto"):
             raise ConfigError(f"tile must be 'auto' or 'off', got {tile!r}")
@@ -376,8 +414,22 @@ class Predictor:
         self.variables = variables
 
     def prepare(self, left, right) -> tuple[np.ndarray, np.ndarray]:
-        """Grey ``f32[H, W]`` images of a pair, checked against this predictor's config."""
-        return prepare_pair(left, right, self.config, self.memory_limit_gb)
+        """Grey ``f32[H, W]`` images of a pair, checked against this predictor's config (with a
+        ``disp_range``, the right image moved by its MIN: :func:`shift_right_image`)."""
+        if self.disp_range is not None and np.ndim(left) >= 2:
+            check_disp_range(self.disp_range, np.shape(left)[1])
+        gl, gr = prepare_pair(left, right, self.config, self.memory_limit_gb)
+        if self.disp_range is None:
+            return gl, gr
+        return gl, shift_right_image(gr, self.disp_range[0])
+
+    def _offset(self, out):
+        """The chain's disparities moved back to the original pair's (``disp_range`` MIN added)."""
+        if self.disp_range is None or self.disp_range[0] == 0:
+            return out
+        if self.confidence:
+            return out[0] + np.float32(self.disp_range[0]), out[1]
+        return out + np.float32(self.disp_range[0])
 
     def _key(self, height: int, width: int):
         from .compile_cache import bucket_shape
@@ -397,7 +449,7 @@ class Predictor:
     def run(self, gl: np.ndarray, gr: np.ndarray) -> np.ndarray:
         """The chain on grey images already checked by :meth:`prepare`."""
         chain, _ = self.compiled(*gl.shape)
-        return chain(gl, gr, self.variables)
+        return self._offset(chain(gl, gr, self.variables))
 
     def __call__(self, left, right) -> np.ndarray:
         """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair."""
@@ -449,8 +501,8 @@ class Predictor:
                                     self.confidence)
         h, w = volume.valid
         if self.confidence:
-            return np.asarray(out[0])[:h, :w], np.asarray(out[1])[:h, :w]
-        return np.asarray(out)[:h, :w]
+            return self._offset((np.asarray(out[0])[:h, :w], np.asarray(out[1])[:h, :w]))
+        return self._offset(np.asarray(out)[:h, :w])
 
     def timed(self, left, right, phases=None) -> tuple[np.ndarray, dict]:
         """(disparity, timings) of a pair, compilation timed apart: ``timings`` has ``seconds``
@@ -516,7 +568,8 @@ def _model_args(config: StereoConfig, params):
 
 
 def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None,
-              memory_limit_gb=None, bucket: bool = True, confidence: bool = False) -> np.ndarray:
+              memory_limit_gb=None, bucket: bool = True, confidence: bool = False,
+              disp_range=None) -> np.ndarray:
     """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
 
     left, right: ``[H, W]`` or ``[H, W, 3]`` arrays (uint8, uint16 or float). config: a
@@ -528,12 +581,15 @@ def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=
     (:func:`stereojax.compile_cache.bucket_shape`) so that nearby sizes share one compiled
     program, and crop back (the result equals the unpadded one away from the padding); False
     compiles for the exact size. confidence: return (disparity, confidence ``f32[H, W]`` in
-    [0, 1]), see :class:`Predictor`. Raises :class:`StereoInputError` / :class:`ConfigError` on
+    [0, 1]), see :class:`Predictor`. disp_range: ``(MIN, MAX)``, the disparities MIN <= d < MAX
+    to search instead of ``0 .. config.max_disp - 1`` (MIN may be negative: converging
+    cameras, Middlebury's offsets). Raises :class:`StereoInputError` / :class:`ConfigError` on
     bad input and :class:`MemoryBudgetError` before allocating a chain that would not fit.
     """
-    config = config or StereoConfig()
-    if bucket or confidence:
-        return Predictor(config, params, memory_limit_gb=memory_limit_gb, confidence=confidence)(left, right)
+    config = config or preset("census")
+    if bucket or confidence or disp_range is not None:
+        return Predictor(config, params, memory_limit_gb=memory_limit_gb, confidence=confidence,
+                         disp_range=disp_range)(left, right)
     variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb)
     return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
@@ -548,7 +604,7 @@ def stages(left: Any, right: Any, config: StereoConfig | None = None, params=Non
     labels (0 correct, 1 mismatch, 2 occlusion), disp_filled, disp_subpixel, disp_median,
     confidence, disparity. memory_limit_gb: as in :func:`disparity` (the estimate counts the kept volumes).
     """
-    config = config or StereoConfig()
+    config = config or preset("census")
     variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb, keep=True)
     out = _stages_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net)

@@ -195,7 +195,7 @@ def test_empty_data_folder(tmp_path, capsys):
 @pytest.mark.parametrize("case, cmd, text, match", [
     ("mistyped top-level key", "predict", {"max_disparity": 16}, "unknown config key 'max_disparity'; did you mean 'max_disp'?"),
     ("mistyped nested key", "predict", {"cbca": {"arm_lenght": 5}}, "did you mean 'cbca.arm_length'?"),
-    ("unknown key, nothing close", "predict", {"zzz": 1}, "unknown config key 'zzz'; valid keys: ['cbca', 'cost'"),
+    ("unknown key, nothing close", "predict", {"zzz": 1}, "unknown config key 'zzz'; valid keys: ['band', 'cbca', 'cost'"),
     ("wrong value type", "predict", {"sgm": {"p1": "high"}}, "config key 'sgm.p1' must be a number, got 'high'"),
     ("mistyped training key", "train", {"bacth": 16}, "did you mean 'batch'?"),
     ("config file is not JSON", "predict", "{max_disp: 3", "config is not valid JSON"),
