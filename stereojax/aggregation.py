@@ -147,8 +147,6 @@ def _band_shift_sum(values, offset, before, after, axis: int, max_arm: int, neut
     n = values.shape[axis]
     j = jnp.arange(k_band, dtype=jnp.int32)
 
-    from .volume import windows
-
     def body(i, total):
         v = jax.lax.dynamic_slice_in_dim(vals, i, n, axis=axis)
         o = jax.lax.dynamic_slice_in_dim(offs, i, n, axis=axis)
@@ -158,9 +156,7 @@ def _band_shift_sum(values, offset, before, after, axis: int, max_arm: int, neut
         shift = offset - o
         idx = j + shift[..., None]
         inside = (idx >= 0) & (idx < k_band)
-        # q's entries shift .. shift + K - 1, from q's band padded by K on both sides
-        got = windows(jnp.pad(v, ((0, 0), (0, 0), (k_band, k_band))), jnp.clip(shift + k_band, 0, 2 * k_band),
-                      k_band)
+        got = jnp.take_along_axis(v, jnp.clip(idx, 0, k_band - 1), axis=-1)
         k = i - max_arm
         take = ((k >= -before) & (k <= after))[..., None]
         return total + jnp.where(take, jnp.where(inside, got, nu), 0.0)
