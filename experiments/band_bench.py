@@ -47,8 +47,6 @@ def main(argv=None):
     sgbm = bench.sgbm_timings(left, right, 228, args.repeats)["padded"]
     for method in METHODS:
         for full in (False, True):
-            if full and method == "kitti2015":      # the full-range row of the full network: see bench.md
-                continue
             code = _CHILD.format(method=method, full=full, data=args.data)
             res, _, err = bench._child(code, {**os.environ, "STEREOJAX_CACHE_DIR": "off"})
             name = method + (" (full range)" if full else " (bands)")

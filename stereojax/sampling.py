@@ -116,7 +116,7 @@ class PatchData(NamedTuple):
 
 def build_patch_data(samples: Sequence, patch_size: int, cfg: SamplerConfig) -> PatchData:
     """Collect the GT pixels of ``samples`` (StereoSample with gt) usable with ``cfg``'s offsets."""
-    from .pipeline import as_grey
+    from .images import as_grey
 
     if not samples:
         raise StereoInputError("no training images given")

@@ -441,7 +441,7 @@ def _preview(cfg: TrainConfig, state, sample, rows: int = 64, cols: int = 320, m
     bottom centre of a validation frame (road and cars), for TensorBoard."""
     from .data.io import colorize_disparity
     from .learned_cost import learned_cost
-    from .pipeline import as_grey
+    from .images import as_grey
 
     h, w = sample.left.shape[:2]
     y0, x0 = max(h - rows, 0), max((w - cols) // 2, 0)
