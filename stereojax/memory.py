@@ -22,6 +22,12 @@ The factors below round these up (5.5 / +2.5 / +4 volumes, 0.5 GiB overhead), so
 estimate of the census chain on a KITTI frame is 2.7 GiB, as the README's ``make bench``
 peak (2.74 GiB including the interpreter).
 
+A banded chain (``band.width`` K > 0, :mod:`stereojax.coarse`) counts ``H · W · K`` instead
+of ``H · W · D``, plus the coarse pass's ``(H/s) · (W/s) · (D/s)`` volumes. Measured against
+it (2026-12-01, census, 48-wide bands, ``VOLUMES_BANDED``): the 6 MP pair (2982x2012, 282
+disparities) peaks at 11.5 GiB (estimate 11.8 GiB); a KITTI frame at 1.68 GiB, of which about
+0.6 GiB is compiling (estimate 1.3 GiB; 1.17 GiB measured with the chain from the cache).
+
 The limit is, in this order: the ``limit_gb`` argument, the environment variable
 ``STEREOJAX_MEMORY_LIMIT_GB`` (GiB; ``off`` disables the guard), else
 :data:`DEFAULT_SHARE` of the memory available now (``MemAvailable`` of ``/proc/meminfo``,
@@ -69,6 +75,9 @@ def volumes(config, keep: bool = False) -> float:
 #: full ``f32[H, W, D]`` volumes a banded chain still builds: ``stages()`` returns its four
 #: volumes at full size (for inspection); SAD is computed over the full range, then cut to bands.
 FULL_VOLUMES_BANDED_STAGES = 4.0
+#: f32[H, W, K] volumes alive at the peak of a banded chain (its SGM keeps one accumulator per
+#: direction of travel): calibrated so that the estimate covers the measured peaks below
+VOLUMES_BANDED = 6.5
 FULL_VOLUMES_BANDED_SAD = 2.0
 
 
@@ -84,7 +93,7 @@ def chain_peak_bytes(height: int, width: int, config, keep: bool = False) -> int
     if not config.banded:
         return int(volumes(config, keep) * height * width * config.max_disp * 4) + OVERHEAD
     k, s = config.band.width, config.band.scale
-    band = volumes(config, False) * height * width * k * 4
+    band = (volumes(config, False) - VOLUMES + VOLUMES_BANDED) * height * width * k * 4
     coarse = VOLUMES * -(-height // s) * -(-width // s) * -(-config.max_disp // s) * 4
     full = (FULL_VOLUMES_BANDED_STAGES if keep else 0.0) + \
         (FULL_VOLUMES_BANDED_SAD if config.cost.method == "sad" else 0.0)

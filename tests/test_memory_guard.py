@@ -35,7 +35,8 @@ def test_memory_estimate_is_calibrated_on_the_kitti_frame():
 
 def test_memory_estimate_of_a_banded_chain_counts_the_band():
     """H*W*K, not H*W*D: the banded estimate grows with the band width, not with the range (the
-    coarse pass's small volumes aside), and a 6 MP pair with 282 disparities fits 16 GiB whole."""
+    coarse pass's small volumes aside), and a 6 MP pair with 282 disparities fits whole in the
+    default budget of a 24 GiB machine like this project's (measured peak 11.5 GiB, tiling.md)."""
     import dataclasses
 
     cfg = stereojax.preset("census", 228)
@@ -45,7 +46,8 @@ def test_memory_estimate_of_a_banded_chain_counts_the_band():
     wide = memory.chain_peak_bytes(375, 1242, dataclasses.replace(cfg, max_disp=456))
     per_disp_full = memory.VOLUMES * 375 * 1242 * 4
     assert wide - band < 0.2 * per_disp_full * 228      # doubling D adds only the coarse pass
-    assert memory.chain_peak_bytes(2012, 2982, stereojax.preset("census", 282)) < 0.7 * 16 * memory.GIB
+    six_mp = memory.chain_peak_bytes(2012, 2982, stereojax.preset("census", 282))
+    assert 11.5 * memory.GIB < six_mp < memory.DEFAULT_SHARE * 22 * memory.GIB
 
 
 def test_memory_guard_refuses_a_4k_pair_before_allocating(monkeypatch):
