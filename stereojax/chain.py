@@ -54,10 +54,13 @@ def _neutral(st, config):
     return st
 
 
-def _cbca_before(st, config):
-    st["vol"] = st["cost_cbca"] = aggregation.cbca_volume(st["vol"], st["arms"], config.cbca.iterations_before,
-                                                          config.cbca.arm_length)
+def _cbca(st, config, iterations: int, key: str):
+    st["vol"] = st[key] = aggregation.cbca_volume(st["vol"], st["arms"], iterations, config.cbca.arm_length)
     return st
+
+
+def _cbca_before(st, config):
+    return _cbca(st, config, config.cbca.iterations_before, "cost_cbca")
 
 
 def _sgm(st, config):
@@ -66,9 +69,7 @@ def _sgm(st, config):
 
 
 def _cbca_after(st, config):
-    st["vol"] = st["cost_final"] = aggregation.cbca_volume(st["vol"], st["arms"], config.cbca.iterations_after,
-                                                           config.cbca.arm_length)
-    return st
+    return _cbca(st, config, config.cbca.iterations_after, "cost_final")
 
 
 def _wta(st, config):

@@ -103,8 +103,9 @@ def windows(values: jax.Array, start: jax.Array, size: int) -> jax.Array:
     ``[*B, L]``, start ``i32[*B]`` (0 <= start <= L - size; clip it first), result ``[*B, size]``.
 
     A gather of contiguous slices (``vmap`` of ``dynamic_slice``): on the CPU about 3x faster
-    than gathering the same entries one by one with ``take_along_axis``; every band kernel reads
-    a neighbour's band through it.
+    than gathering the same entries one by one with ``take_along_axis`` for the census band
+    (:func:`stereojax.cost.census_band`); for CBCA and SGM it was not faster, so they gather
+    entries (docs/results.md).
     """
     def one(v, s):
         return jax.lax.dynamic_slice_in_dim(v, s, size, axis=0)
