@@ -20,6 +20,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from .data.io import write_json
 from .errors import StereoError
 from .interrupt import stop_on_signals
@@ -67,18 +69,33 @@ def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: f
             "left": _file_id(left_path), "right": _file_id(right_path)}
 
 
-def is_complete(target: Path, record: dict) -> bool:
-    """Whether ``target`` holds a finished frame made with ``record``'s settings and inputs."""
+#: what frame.json holds beside the record of what made the frame
+_RESULT_KEYS = ("outputs", "files", "timings", "size", "disp_range_used", "warnings")
+
+
+def is_complete(target: Path, record: dict, verify: bool = False) -> bool:
+    """Whether ``target`` holds a finished frame made with ``record``'s settings and inputs,
+    every file of it with its recorded size (and digest, with ``verify``)."""
+    return frame_problem(target, record, verify) is None
+
+
+def frame_problem(target: Path, record: dict, verify: bool = False) -> str | None:
+    """None when ``target`` holds a finished frame made with ``record`` whose files pass
+    :func:`stereojax.integrity.damaged`; else why not ("settings differ", or the damaged file)."""
+    from .integrity import damaged
+
     try:
         stored = json.loads((target / MANIFEST).read_text())
     except (OSError, ValueError):
-        return False
-    outputs = stored.pop("outputs", None)
-    stored.pop("timings", None)
-    stored.pop("size", None)
-    stored.pop("disp_range_used", None)
-    return stored == json.loads(json.dumps(record)) and isinstance(outputs, list) \
-        and all((target / name).is_file() for name in outputs)
+        return "no readable frame.json"
+    if not isinstance(stored, dict):
+        return "no readable frame.json"
+    files = stored.get("files")
+    for k in _RESULT_KEYS:
+        stored.pop(k, None)
+    if stored != json.loads(json.dumps(record)):
+        return "made with other settings or inputs"
+    return damaged(target, files, verify)
 
 
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
@@ -103,9 +120,15 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     :meth:`stereojax.pipeline.Predictor.timed`."""
     from .data.datasets import load_pair
     from .devices import current_device
-    from .pipeline import Predictor
+    from .pipeline import Predictor, check_size
 
     sample = load_pair(left_path, right_path)
+    if disp_range != "auto":     # an unusable pair is refused in one line before anything else runs
+        h, w = np.shape(sample.left)[:2]
+        early = resolve(w, h).config
+        if disp_range is not None:
+            early = early.with_max_disp(disp_range[1] - disp_range[0])
+        check_size(h, w, early)
     check = _check_rectified(sample, check_rectified, need=disp_range == "auto")
     used = _disp_range(disp_range, check, sample.left.shape[1])
     if disp_range == "auto" and phases is not None and not getattr(phases, "quiet", False):
@@ -129,10 +152,13 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
                                          "chosen": run.description})
     written += ["config.json", "timings.json"]
     if record:
+        from .integrity import file_entries
+
         write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence,
                                                       disp_range),
                                        "disp_range_used": None if used is None else list(used),
-                                       "size": list(disp.shape), "outputs": written, "timings": timings})
+                                       "size": list(disp.shape), "outputs": written,
+                                       "files": file_entries(target, written), "timings": timings})
     return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run}
 
 
@@ -146,6 +172,8 @@ def _check_rectified(sample, mode: str, need: bool = False):
     if mode == "off" and not need:
         return None
     check = check_rectified(sample.left, sample.right)
+    if check.skipped and mode != "off":
+        warnings.warn(check.skipped, InputWarning, stacklevel=3)
     problem = check.problem if mode != "off" else None
     if problem and mode == "error":
         raise StereoInputError(problem)
@@ -200,32 +228,67 @@ def _predict_into_place(pair, out: Path, resolve, opts: dict) -> dict:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def _reusable(pair, out: Path, resolve, opts: dict) -> bool:
-    """Whether ``out/<name>`` is complete and made with what this run would use. The images are
-    not read: when both input files are the ones recorded, their size is the recorded one."""
+def _reusable(pair, out: Path, resolve, opts: dict, verify: bool = False) -> tuple[bool, str | None]:
+    """(whether ``out/<name>`` is complete and made with what this run would use, why a frame
+    that was recorded as finished is not: a damaged or missing file). The images are not read:
+    when both input files are the ones recorded, their size is the recorded one."""
     name, left_p, right_p = pair
     try:
         stored = json.loads((out / name / MANIFEST).read_text())
         if stored.get("left") != _file_id(left_p) or stored.get("right") != _file_id(right_p):
-            return False
+            return False, None
         height, width = stored["size"]
         record = frame_record(resolve(width, height), opts["calib"], opts["ply"], left_p, right_p,
                               opts["min_confidence"], opts.get("disp_range"))
-        return is_complete(out / name, record)
+        problem = frame_problem(out / name, record, verify)
+        if problem is None:
+            return True, None
+        return False, None if problem == "made with other settings or inputs" else problem
     except (StereoError, OSError, ValueError, KeyError, TypeError):
-        return False
+        return False, None
 
 
 def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = False,
                   devices: list | None = None, overwrite: bool = False, min_confidence: float = 0.0,
-                  check_rectified: str = "warn", tile: str = "auto", disp_range=None) -> dict:
+                  check_rectified: str = "warn", tile: str = "auto", disp_range=None, verify: bool = False,
+                  unmatched=None) -> dict:
     """Every ``(name, left, right)`` pair into ``out/<name>/``: frames already complete with
     this run's settings are skipped (all computed with ``overwrite``), one compiled chain per
     size bucket, a progress bar with frames/s and the time left, one line per failed pair (the
     batch goes on), and ``out/summary.json``, which is also returned.
 
+    A frame recorded as complete is kept only when each of its files has its recorded size
+    (``verify``: and its recorded SHA-256); one that fails is computed again and named in one
+    line and in ``summary.json``'s ``damaged``. ``unmatched``: input names that had no partner
+    (:func:`stereojax.data.pairs.find_pairs`), reported in summary.json.
+
+    The batch holds ``out``'s lock (:func:`stereojax.outputs.folder_lock`): a second batch on
+    the same folder is refused with :class:`~stereojax.errors.OutputBusyError` (exit code 8).
+
     On SIGINT or SIGTERM the frame in progress is finished or left absent, summary.json is
     written with what was done, and :class:`stereojax.interrupt.Interrupted` is raised."""
+    from .outputs import folder_lock, output_folder
+
+    with folder_lock(output_folder(out), "predict"):
+        return _predict_batch_locked(pairs, out, resolve, dict(
+            calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile,
+            disp_range=disp_range), devices, overwrite, verify, unmatched)
+
+
+def _remove_stale(out: Path) -> None:
+    """Remove the staging folders (``.<frame>.partial-PID``, ``.<frame>.old-PID``) that a killed run
+    left; never one of a process that is still alive."""
+    from .outputs import pid_alive
+
+    for stale in [*out.glob(f".*{_PARTIAL}*"), *out.glob(".*.old-*")]:
+        pid = stale.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and int(pid) != os.getpid() and pid_alive(int(pid)):
+            continue
+        shutil.rmtree(stale, ignore_errors=True)
+
+
+def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devices, overwrite: bool,
+                          verify: bool, unmatched) -> dict:
     from tqdm import tqdm
 
     from .devices import map_frames
@@ -233,11 +296,14 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     from .memory import current_rss_bytes, peak_rss_bytes
 
     devices = list(devices or [])
-    opts = dict(calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile,
-                disp_range=disp_range)
-    for stale in [*out.glob(f".*{_PARTIAL}*"), *out.glob(".*.old-*")]:          # left by a killed run
-        shutil.rmtree(stale, ignore_errors=True)
-    skipped = [] if overwrite else [p[0] for p in pairs if _reusable(p, out, resolve, opts)]
+    _remove_stale(out)
+    skipped, damaged = [], []
+    for p in ([] if overwrite else pairs):
+        ok, problem = _reusable(p, out, resolve, opts, verify)
+        if ok:
+            skipped.append(p[0])
+        elif problem:
+            damaged.append({"frame": p[0], "problem": problem})
     done = set(skipped)
     todo = [p for p in pairs if p[0] not in done]
 
@@ -252,8 +318,12 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     with tqdm(total=len(pairs), initial=len(skipped), desc="predict", unit="frame", file=sys.stderr,
               dynamic_ncols=True) as bar:
         if skipped:
+            checked = "sizes and SHA-256 checked" if verify else "file sizes checked; --verify reads the digests"
             tqdm.write(f"stereojax predict: {len(skipped)} of {len(pairs)} frames already complete in {out} "
-                       "(skipped; --overwrite computes them again)", file=sys.stderr)
+                       f"(skipped, {checked}; --overwrite computes them again)", file=sys.stderr)
+        for d in damaged:
+            tqdm.write(f"stereojax predict: {d['frame']}: recorded as complete but {d['problem']}; computing "
+                       "it again", file=sys.stderr)
         if len(devices) > 1:
             tqdm.write(f"stereojax predict: {len(devices)} devices, one frame each at a time", file=sys.stderr)
         try:
@@ -287,7 +357,8 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
                "frames_per_s": len(rows) / wall if wall > 0 else 0.0,
                "frames_per_s_warm": len(rows) * n_dev / compute if compute > 0 else 0.0,
                "compile_s": sum(r["compile_s"] for r in rows), "peak_rss_mb": peak_rss_bytes() / 2 ** 20,
-               "per_frame": rows, "skipped_frames": skipped}
+               "per_frame": rows, "skipped_frames": skipped, "damaged": damaged,
+               "unmatched": list(unmatched or [])}
     write_json(out / "summary.json", summary)
     if interrupted:
         interrupted.summary = summary
@@ -312,4 +383,6 @@ def summary_line(s: dict, out: Path) -> str:
             f"({s['frames_per_s']:.2f} frames/s overall, {s['frames_per_s_warm']:.2f} frames/s "
             f"after {s['compile_s']:.1f} s compiling), peak RSS {s['peak_rss_mb'] / 1024:.2f} GiB; "
             f"summary.json" + (f"; {len(failed)} failed: " + ", ".join(f["frame"] for f in failed[:10])
-                               if failed else ""))
+                               if failed else "")
+            + (f"; {len(s['damaged'])} damaged frame(s) computed again" if s.get("damaged") else "")
+            + (f"; {len(s['unmatched'])} image(s) without a partner" if s.get("unmatched") else ""))

@@ -85,7 +85,13 @@ def cmd_predict(args) -> int:
     if not batch:
         print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
         return 0
-    s = predict_batch(pairs, out, resolve, devices=devices, overwrite=args.overwrite, **opts)
+    from .data.pairs import unmatched_line
+
+    unmatched = getattr(pairs, "unmatched", [])
+    if unmatched:
+        print(f"stereojax predict: {unmatched_line(unmatched)}", file=sys.stderr)
+    s = predict_batch(pairs, out, resolve, devices=devices, overwrite=args.overwrite, verify=args.verify,
+                      unmatched=unmatched, **opts)
     print(summary_line(s, out))
     return 2 if s["failed"] else 0
 
@@ -103,7 +109,8 @@ def cmd_evaluate(args) -> int:
     run = _resolve(args, 0, 0, args.dataset)
     print(f"method: {run.description}", file=sys.stderr)
     evaluate_dataset(items, args.dataset, run, out, gt=args.gt, fill=args.fill, max_disp=args.max_disp,
-                     sgbm=args.sgbm, devices=local_devices(args.devices), overwrite=args.overwrite)
+                     sgbm=args.sgbm, devices=local_devices(args.devices), overwrite=args.overwrite,
+                     verify=args.verify)
     return 0
 
 
@@ -218,6 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "(0 in the PNGs) where the confidence (confidence.png) is below T in [0, 1] (default 0: all)")
     sp.add_argument("--overwrite", action="store_true", help="a batch computes every frame again (default: "
                     "frames already complete in --out with the same method, model, settings and inputs are kept)")
+    sp.add_argument("--verify", action="store_true", help="a batch reads the SHA-256 of every kept frame's files "
+                    "again (default: their sizes are checked); a frame that fails is computed again")
     add_devices(sp)
     add_method(sp)
     sp.set_defaults(func=cmd_predict)
@@ -236,6 +245,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", default="out/evaluate", help="output folder (an evaluation of the same settings "
                     "there is continued: frames already scored are taken from OUT/frames/)")
     sp.add_argument("--overwrite", action="store_true", help="score every frame again")
+    sp.add_argument("--verify", action="store_true", help="read the SHA-256 of every reused frame's files again "
+                    "(default: their sizes are checked)")
     add_devices(sp)
     add_method(sp)
     sp.set_defaults(func=cmd_evaluate)

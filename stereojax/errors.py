@@ -36,6 +36,13 @@ class OutputError(StereoError, OSError):
     exit_code = 5
 
 
+class OutputBusyError(OutputError):
+    """Another live process holds the output folder's lock (a batch ``predict`` or an
+    ``evaluate`` writing into the same ``--out``); nothing was written."""
+
+    exit_code = 8
+
+
 class MemoryBudgetError(StereoError, MemoryError):
     """The chain's cost volumes would not fit in the memory limit; refused before allocating.
 

@@ -215,7 +215,7 @@ def format_table(mean: Mapping[str, Mapping]) -> str:
 
 def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: str = "interpolate",
                      max_disp: int | None = None, sgbm: bool = False, devices: list | None = None,
-                     overwrite: bool = False) -> dict:
+                     overwrite: bool = False, verify: bool = False) -> dict:
     """``stereojax evaluate``: the chain of ``run`` (:class:`stereojax.models.Resolved`), and
     OpenCV SGBM left-padded and unpadded with ``sgbm``, on the ``(frame_id, load)`` items of a
     dataset (:func:`stereojax.data.datasets.load_dataset`).
@@ -224,7 +224,9 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
     (the frame's scores and what made them) after each frame, then ``results.json`` and
     ``results.md``; prints the table. A frame whose record matches this run (dataset, ground
     truth, fill, method, weights, chain settings, SGBM) is taken from its record instead of
-    computed again (``overwrite``: every frame is computed), so an interrupted evaluation
+    computed again (``overwrite``: every frame is computed) when each of its files has its
+    recorded size (``verify``: and SHA-256; a damaged frame is named and scored again), so an
+    interrupted evaluation
     continues where it stopped and its mean is that of an uninterrupted one. Frames without
     ``gt`` ground truth are skipped with a warning (:class:`StereoInputError` when none has
     it). SIGINT/SIGTERM raise :class:`stereojax.interrupt.Interrupted` after the records of the
@@ -236,7 +238,8 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
     from .data.datasets import search_range
     from .errors import StereoInputError
     from .interrupt import stop_on_signals
-    from .outputs import color_scale, write_prediction
+    from .integrity import damaged, file_entries
+    from .outputs import color_scale, folder_lock, output_folder, write_prediction
 
     out = Path(out)
     if devices and len(devices) > 1:
@@ -250,19 +253,26 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
 
     def write(row, sample, disparities):
         disp = disparities["pipeline"]
-        write_prediction(out, f"{row['frame']}_", disp, color_max=color_scale(disp, sample.gt, sample.gt_valid))
+        names = write_prediction(out, f"{row['frame']}_", disp,
+                                 color_max=color_scale(disp, sample.gt, sample.gt_valid))
         io.write_error_map(out / f"{row['frame']}_error.png", disp, sample.gt, sample.gt_valid)
-        io.write_json(records / f"{row['frame']}.json", {"key": key, "row": row})
+        io.write_json(records / f"{row['frame']}.json", {"key": key, "row": row,
+                                                          "files": file_entries(out, [*names, f"{row['frame']}_error.png"])})
 
     def earlier(frame_id):
         try:
             stored = json.loads((records / f"{frame_id}.json").read_text())
         except (OSError, ValueError):
             return None
-        complete = all((out / f"{frame_id}_{name}").is_file() for name in ("disparity.png", "error.png"))
-        return stored["row"] if complete and stored.get("key") == json.loads(json.dumps(key)) else None
+        if not isinstance(stored, dict) or stored.get("key") != json.loads(json.dumps(key)):
+            return None
+        problem = damaged(out, stored.get("files"), verify)
+        if problem:
+            print(f"{frame_id}: recorded as scored but {problem}; scoring it again", file=sys.stderr)
+            return None
+        return stored.get("row")
 
-    with stop_on_signals():
+    with folder_lock(output_folder(out), "evaluate"), stop_on_signals():
         result = evaluate_frames(items, methods, lambda s: search_range(dataset, s, max_disp), fill=fill,
                                  devices=devices, on_frame=write, progress=f"evaluate {dataset}",
                                  reuse=None if overwrite else earlier,

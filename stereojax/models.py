@@ -39,6 +39,20 @@ def shipped_weights(name: str = "kitti2015") -> Path:
     return path
 
 
+def check_weights_exist(weights) -> None:
+    """Refuse a weights argument that is neither a shipped name nor an existing file, listing
+    the shipped names (and the closest one to what was typed)."""
+    import difflib
+
+    if Path(weights).is_file():
+        return
+    typed = str(weights)
+    close = difflib.get_close_matches(Path(typed).stem, list(SHIPPED), n=1)
+    hint = f"; did you mean {close[0]}?" if close else ""
+    raise CheckpointError(f"weights {typed} does not exist: neither a file nor a shipped model (shipped: "
+                          f"{', '.join(SHIPPED)}){hint}")
+
+
 def weights_path(weights) -> Path:
     """The file of ``weights``: a shipped model's name (see SHIPPED) or a path."""
     return shipped_weights(weights) if weights in SHIPPED else Path(weights)
@@ -176,6 +190,8 @@ def resolve(method: str = "best", weights=None, config=None, width: int = 0, hei
 
     if weights in SHIPPED:
         weights = shipped_weights(weights)
+    elif weights:
+        check_weights_exist(weights)
     if method == "best":
         if config is not None and config.cost.method != "learned":
             method = config.cost.method          # a classical chain from the config

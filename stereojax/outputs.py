@@ -4,6 +4,7 @@ calibration, depth (PNG, npy) and a coloured point cloud; every file atomically.
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,50 @@ def output_folder(path) -> Path:
     if not path.is_dir() or not os.access(path, os.W_OK | os.X_OK):
         raise OutputError(f"output folder {path} is not writable")
     return path
+
+
+LOCK_NAME = ".stereojax.lock"
+
+
+@contextmanager
+def folder_lock(folder: Path, command: str = "stereojax"):
+    """Hold the output folder's lock (``folder/.stereojax.lock``, an exclusive ``flock``) while
+    the block runs, as a database does before it writes: a second process on the same folder
+    gets :class:`~stereojax.errors.OutputBusyError` at once, naming the holder's PID. The
+    operating system releases the lock when its process dies, however it dies, so a killed run
+    never leaves the folder locked."""
+    import fcntl
+
+    from .errors import OutputBusyError
+
+    path = Path(folder) / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise OutputError(f"cannot create the lock file {path}: {exc.strerror}") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip() or "?"
+            raise OutputBusyError(f"output folder {folder} is in use by PID {holder} (another stereojax "
+                                  f"{command}); wait for it to finish or choose another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield path
+    finally:
+        os.close(fd)      # releases the lock
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this PID runs on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def color_scale(disp, gt=None, gt_valid=None) -> float:

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import chain as chain_mod
+from .compile_cache import ensure_enabled
 from .config import StereoConfig, preset
 from .errors import ConfigError, StereoInputError
 from .images import as_grey, pair_float_scale
@@ -70,6 +71,16 @@ def _kind(arr: np.ndarray) -> str:
     return f"{'colour' if arr.ndim == 3 else 'grey'} {arr.dtype}"
 
 
+def check_size(h: int, w: int, config: StereoConfig) -> None:
+    """Refuse an ``h x w`` pair too small for ``config``'s windows or disparity range."""
+    need = min_image_size(config)
+    if h < need or w < need:
+        raise StereoInputError(f"image is {h}x{w}, smaller than the {need}x{need} window the "
+                               "configuration needs")
+    if config.max_disp >= w:
+        raise StereoInputError(f"max_disp must be smaller than the image width {w}, got {config.max_disp}")
+
+
 def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=None,
                  keep: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Check a pair against a config; return grey ``f32[H, W]`` left and right images.
@@ -95,12 +106,7 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=No
         warnings.warn(f"left is {_kind(la)} but right is {_kind(ra)}; both converted to grey "
                       "0..255 before matching", InputWarning, stacklevel=3)
     h, w = gl.shape
-    need = min_image_size(config)
-    if h < need or w < need:
-        raise StereoInputError(f"image is {h}x{w}, smaller than the {need}x{need} window the "
-                               "configuration needs")
-    if config.max_disp >= w:
-        raise StereoInputError(f"max_disp must be smaller than the image width {w}, got {config.max_disp}")
+    check_size(h, w, config)
     from .memory import check_memory
 
     check_memory(h, w, config, memory_limit_gb, keep=keep)
@@ -298,6 +304,16 @@ _COMPILED_LOCK = threading.Lock()
 _KEEP_PER_DEVICE = 4
 
 
+def default_device(device=None):
+    """``device``, or the default device when None."""
+    if device is not None:
+        return device
+    d = jax.config.jax_default_device
+    if isinstance(d, str):
+        return jax.devices(d)[0]
+    return d or jax.devices()[0]
+
+
 def _variable_shapes(variables):
     if variables is None:
         return None
@@ -309,7 +325,11 @@ def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, varia
                    device=None, confidence: bool = False) -> tuple[CompiledChain, bool]:
     """(the :class:`CompiledChain` of a bucket shape, config, architecture and device, whether it
     was compiled now); ``variables`` give the shapes only. Safe to call from the worker threads
-    of :func:`stereojax.devices.map_frames`. Most callers want :class:`Predictor`."""
+    of :func:`stereojax.devices.map_frames`. Most callers want :class:`Predictor`.
+
+    ``device`` None means the default device, named: a program compiled for it is the one a
+    batch compiles for its first device, so both find one persistent-cache entry."""
+    device = default_device(device)
     key = (tuple(shape), config, net, device, _variable_shapes(variables), confidence)
     with _COMPILED_LOCK:
         fresh = key not in _COMPILED
@@ -355,8 +375,10 @@ class Predictor:
             raise ConfigError(f"tile must be 'auto' or 'off', got {tile!r}")
         self.tile = tile
         variables, self.net = _model_args(self.config, model)
+        ensure_enabled()          # the persistent compile cache, as the CLI has it
+        device = default_device(device)
         self.model, self.device, self.memory_limit_gb = model, device, memory_limit_gb
-        if variables is not None and device is not None:
+        if variables is not None:
             variables = jax.device_put(variables, device)
         self.variables = variables
 
@@ -418,12 +440,30 @@ class Predictor:
             return None
         return tiling.band_rows(h, w, self.config, self.memory_limit_gb)
 
-    def in_bands(self, left, right, rows: int, overlap: int | None = None):
+    def in_bands(self, left, right, rows: int, overlap: int | None = None, on_band=None):
         """The pair in horizontal bands of ``rows`` rows, stitched (:func:`stereojax.tiling.run_in_bands`)."""
         from . import tiling
 
         return tiling.run_in_bands(lambda a, b: self.run(*self.prepare(a, b)), left, right, rows,
-                                   tiling.SEAM_OVERLAP if overlap is None else overlap)
+                                   tiling.SEAM_OVERLAP if overlap is None else overlap, on_band)
+
+    def _in_bands_shown(self, left, right, rows: int, n: int, phases):
+        """:meth:`in_bands` with a progress bar over the bands (the time left) unless ``phases``
+        is quiet; (disparity, seconds)."""
+        import sys
+        import time
+
+        from tqdm import tqdm
+
+        h, w = np.shape(left)[:2]
+        t0 = time.perf_counter()
+        if phases.quiet:
+            return self.in_bands(left, right, rows), time.perf_counter() - t0
+        print(f"stereojax: computing the disparity of {w}x{h} in {n} bands of {rows} rows (the whole frame would "
+              "not fit the memory limit; --tile off refuses it)", flush=True)
+        with tqdm(total=n, desc="bands", unit="band", file=sys.stderr, dynamic_ncols=True) as bar:
+            out = self.in_bands(left, right, rows, on_band=lambda: bar.update(1))
+        return out, time.perf_counter() - t0
 
     def volume(self, left, right) -> Volume:
         """The pair's matching cost with this predictor's cost settings, padded to its size
@@ -467,10 +507,7 @@ class Predictor:
 
             h, w = np.shape(left)[:2]
             n = len(bands(h, rows, SEAM_OVERLAP))
-            phases.start(f"computing the disparity of {w}x{h} in {n} bands of {rows} rows (the whole frame "
-                         "would not fit the memory limit)")
-            out = self.in_bands(left, right, rows)
-            secs = phases.done()
+            out, secs = self._in_bands_shown(left, right, rows, n, phases)
             shape = bucket_shape(rows, w)
             return out, {"seconds": secs, "compile_s": 0.0, "bucket": [int(shape[0]), int(shape[1])],
                          "device": str(device), "bands": n, "band_rows": rows}

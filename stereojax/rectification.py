@@ -22,6 +22,8 @@ MAX_ROW_SPREAD_PX = 1.5
 #: more than this share of the matches to the right (x_right > x_left + 0.5) means swapped
 SWAPPED_SHARE = 0.5
 MIN_MATCHES = 20
+#: ORB needs its 31-pixel patch plus a border inside the image: smaller images are not checked
+MIN_SIDE_PX = 64
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,8 @@ class RectificationCheck:
     #: 1st and 99th percentiles of the matches' disparities x_left - x_right (nan: too few matches)
     disparity_p1: float = float("nan")
     disparity_p99: float = float("nan")
+    #: why the check could not run (an image too small or too flat for feature matching), else None
+    skipped: str | None = None
 
 
 def _grey8(img) -> np.ndarray:
@@ -52,10 +56,32 @@ def _grey8(img) -> np.ndarray:
 
 def check_rectified(left, right, features: int = 3000) -> RectificationCheck:
     """Check a pair (any image arrays ``[H, W]`` or ``[H, W, 3]``) with ORB matches and RANSAC;
-    well under a second on a KITTI-sized pair."""
+    well under a second on a KITTI-sized pair. An image too small or too flat for feature
+    matching is not checked (``skipped`` says why); the check never raises on an image."""
     import cv2
 
     gl, gr = _grey8(left), _grey8(right)
+    small = min(*gl.shape[:2], *gr.shape[:2])
+    if small < MIN_SIDE_PX:
+        return _skipped(f"the images are too small for feature matching ({gl.shape[1]}x{gl.shape[0]}, "
+                        f"under {MIN_SIDE_PX} px on a side)")
+    if int(gl.max()) == int(gl.min()) or int(gr.max()) == int(gr.min()):
+        return _skipped("an image is flat (one grey level): no features to match")
+    try:
+        return _check(gl, gr, features)
+    except cv2.error as exc:       # the check must never end a run
+        first = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        return _skipped(f"OpenCV could not match features ({first.strip()})")
+
+
+def _skipped(why: str) -> RectificationCheck:
+    nan = float("nan")
+    return RectificationCheck(0, nan, nan, nan, None, skipped=f"rectification check skipped: {why}")
+
+
+def _check(gl, gr, features: int) -> RectificationCheck:
+    import cv2
+
     orb = cv2.ORB_create(nfeatures=features)
 
     def describe(img):

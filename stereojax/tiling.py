@@ -72,9 +72,10 @@ def bands(height: int, rows: int, overlap: int = SEAM_OVERLAP) -> list[tuple[int
     return out
 
 
-def run_in_bands(predict, left, right, rows: int, overlap: int = SEAM_OVERLAP):
+def run_in_bands(predict, left, right, rows: int, overlap: int = SEAM_OVERLAP, on_band=None):
     """``predict(left_band, right_band)`` on every band and the results stitched: a disparity
-    ``f32[H, W]``, or a tuple of such maps when ``predict`` returns one (e.g. with confidence)."""
+    ``f32[H, W]``, or a tuple of such maps when ``predict`` returns one (e.g. with confidence).
+    ``on_band()`` is called after each band (a progress bar's update)."""
     la, ra = np.asarray(left), np.asarray(right)
     height = la.shape[0]
     stitched = None
@@ -85,4 +86,6 @@ def run_in_bands(predict, left, right, rows: int, overlap: int = SEAM_OVERLAP):
             stitched = [np.empty((height,) + p.shape[1:], p.dtype) for p in parts]
         for whole, part in zip(stitched, parts):
             whole[k0:k1] = part[k0 - start:k1 - start]
+        if on_band is not None:
+            on_band()
     return tuple(stitched) if len(stitched) > 1 else stitched[0]

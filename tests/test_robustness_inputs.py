@@ -55,7 +55,8 @@ def test_predict_size_mismatch(tmp_path, capsys):
 def test_colour_grey_mix_is_accepted_and_reported(tmp_path, capsys):
     lp, rp = _write_pair(tmp_path / "g")
     lc, _ = _write_pair(tmp_path / "c", colour_left=True)
-    code, _, err = _cli(["predict", lc, rp, "--out", tmp_path / "mix", *FAST], capsys, "colour/grey mix")
+    code, _, err = _cli(["predict", lc, rp, "--out", tmp_path / "mix", *FAST, "--check-rectified", "off"], capsys,
+                        "colour/grey mix")
     assert code == 0
     assert err.count("\n") == 1 and "Traceback" not in err     # one line
     line = err.strip()
@@ -74,7 +75,7 @@ def test_16bit_and_float_inputs(tmp_path, capsys):
     lp, rp = _write_pair(tmp_path / "u8")
     l16, r16 = _write_pair(tmp_path / "u16", left_dtype=np.uint16)
     assert io.read_image(l16).dtype == np.uint16
-    code, _, err = _cli(["predict", l16, r16, "--out", tmp_path / "o16", *FAST], capsys)
+    code, _, err = _cli(["predict", l16, r16, "--out", tmp_path / "o16", *FAST, "--check-rectified", "off"], capsys)
     assert code == 0 and err.strip() == ""
     code, _, _ = _cli(["predict", lp, rp, "--out", tmp_path / "o8", *FAST], capsys)
     assert code == 0

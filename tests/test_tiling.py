@@ -95,6 +95,8 @@ def test_a_pair_over_the_memory_limit_runs_in_bands_or_is_refused(tmp_path, caps
     assert code == 6 and "needs about" in err
     code, out, err = _cli(argv + ["--out", tmp_path / "auto"], capsys)
     assert code == 0, err
+    assert "bands of" in out and "--tile off refuses it" in out          # what happens, and how to refuse
+    assert "bands: 100%" in err and ("band/s" in err or "s/band" in err)  # a progress bar with the rate
     timings = json.loads((tmp_path / "auto" / "timings.json").read_text())
     assert timings["bands"] >= 2 and timings["band_rows"] < 256
     assert memory.chain_peak_bytes(timings["band_rows"], 320, cfg) <= (need - 0.04) * memory.GIB

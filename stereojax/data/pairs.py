@@ -18,17 +18,39 @@ def images(folder: Path) -> dict[str, Path]:
             if p.is_file() and p.suffix.lower() in IMAGE_EXT}
 
 
-def folder_pairs(left_dir: Path, right_dir: Path) -> list[tuple[str, Path, Path]]:
-    """Pairs of two folders, matched by file name."""
+class Pairs(list):
+    """A list of ``(name, left, right)`` pairs, with ``unmatched``: the images of two folders
+    that had no file of the same name in the other folder (``"left/NAME"`` or ``"right/NAME"``,
+    sorted), which are not computed and are reported (:func:`unmatched_line`)."""
+
+    def __init__(self, pairs=(), unmatched=()):
+        super().__init__(pairs)
+        self.unmatched = list(unmatched)
+
+
+def unmatched_line(unmatched, shown: int = 5) -> str | None:
+    """One line about the images without a partner, or None when there are none."""
+    if not unmatched:
+        return None
+    n_left = sum(u.startswith("left/") for u in unmatched)
+    first = ", ".join(unmatched[:shown]) + (f" and {len(unmatched) - shown} more" if len(unmatched) > shown else "")
+    return (f"{len(unmatched)} image(s) without a partner of the same name ({n_left} left, "
+            f"{len(unmatched) - n_left} right), not computed: {first}")
+
+
+def folder_pairs(left_dir: Path, right_dir: Path) -> Pairs:
+    """Pairs of two folders, matched by file name; the names without a partner are in
+    ``unmatched`` (:class:`Pairs`)."""
     left, right = images(left_dir), images(right_dir)
     common = sorted(set(left) & set(right))
     if not common:
         raise StereoInputError(f"no image in {left_dir} has a file of the same name in {right_dir} "
                                f"({len(left)} and {len(right)} images)")
-    return [(Path(n).stem, left[n], right[n]) for n in common]
+    unmatched = sorted([f"left/{n}" for n in set(left) - set(right)] + [f"right/{n}" for n in set(right) - set(left)])
+    return Pairs([(Path(n).stem, left[n], right[n]) for n in common], unmatched)
 
 
-def kitti_pairs(folder: Path) -> list[tuple[str, Path, Path]]:
+def kitti_pairs(folder: Path) -> Pairs:
     """Pairs of a KITTI ``training/`` or ``testing/`` folder (image_2/3, image_0/1 or colored_0/1)."""
     for lv, rv in KITTI_VIEWS:
         if (folder / lv).is_dir() and (folder / rv).is_dir():
