@@ -58,14 +58,15 @@ def frame_key_of_run(run) -> dict:
 
 
 def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: float = 0.0,
-                 disp_range=None) -> dict:
+                 disp_range=None, max_depth: float | None = None) -> dict:
     """What a frame's outputs depend on: :func:`frame_key_of_run`, the calibration, the
     point-cloud option, the confidence threshold, the disparity-range option (None, [MIN, MAX]
-    or "auto") and the two input files."""
+    or "auto"), ``--max-depth`` (when given) and the two input files."""
     rng = list(disp_range) if isinstance(disp_range, (tuple, list)) else disp_range
     return {**frame_key_of_run(run),
             "calib": dataclasses.asdict(calib) if calib is not None else None, "ply": bool(ply),
             "min_confidence": float(min_confidence), "disp_range": rng,
+            **({"max_depth": float(max_depth)} if max_depth is not None else {}),
             "left": _file_id(left_path), "right": _file_id(right_path)}
 
 
@@ -100,7 +101,8 @@ def frame_problem(target: Path, record: dict, verify: bool = False) -> str | Non
 
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
                  phases=None, record: bool = False, min_confidence: float = 0.0,
-                 check_rectified: str = "warn", tile: str = "auto", disp_range=None) -> dict:
+                 check_rectified: str = "warn", tile: str = "auto", disp_range=None,
+                 max_depth: float | None = None) -> dict:
     """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``,
     with its confidence map (``confidence.png``, ``confidence.npy``); pixels whose confidence
     is below ``min_confidence`` have no disparity and no depth (0 in the PNGs).
@@ -114,10 +116,25 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     matches of the rectification check, :func:`stereojax.rectification.auto_disp_range`; the
     range used is printed by the CLI and written to ``timings.json`` and ``frame.json``).
 
+    max_depth: points farther than this (metres) have no depth in depth.npy / depth.png and no
+    point in points.ply. When more than :data:`RANGE_SHARE` of the confident pixels sit at an end
+    of the disparity range, an :class:`~stereojax.errors.InputWarning` says so with a suggested
+    range (:func:`range_warning`). Every warning shown is also kept, in ``timings.json``,
+    ``frame.json`` and the result's ``warnings`` (:mod:`stereojax.warnlog`).
+
     resolve(width, height) -> :class:`stereojax.models.Resolved` says what runs for this input.
     record: also write ``frame.json`` (what the frame was made with, and its files) last.
-    Returns ``{"disparity", "confidence", "timings", "written", "run"}``; ``timings`` as
-    :meth:`stereojax.pipeline.Predictor.timed`."""
+    Returns ``{"disparity", "confidence", "timings", "written", "run", "warnings"}``; ``timings``
+    as :meth:`stereojax.pipeline.Predictor.timed`."""
+    from .warnlog import recording
+
+    with recording() as warned:
+        return _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
+                             check_rectified, tile, disp_range, max_depth, warned)
+
+
+def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
+                  check_rectified, tile, disp_range, max_depth, warned) -> dict:
     from .data.datasets import load_pair
     from .devices import current_device
     from .pipeline import Predictor, check_size
@@ -141,11 +158,15 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     (disp, conf), timings = predictor.timed(sample.left, sample.right, phases)
     if used is not None:
         timings = {**timings, "disp_range": list(used)}
+    lo, hi = used if used is not None else (0, cfg.max_disp)
+    _warn_range(disp, conf, lo, hi, disp.shape[1], pinned_low=used is not None)
     disp = blank_unconfident(disp, conf, min_confidence)
     target.mkdir(parents=True, exist_ok=True)
-    written = write_prediction(target, "", disp, calib, sample.left, ply=ply) + write_confidence(target, "", conf)
+    written = write_prediction(target, "", disp, calib, sample.left, ply=ply, max_depth=max_depth) \
+        + write_confidence(target, "", conf)
     if calib is not None:
         _check_depth(disp, calib)
+    timings = {**timings, "warnings": list(warned)}
     write_json(target / "config.json", cfg.to_dict())
     write_json(target / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                          "max_disp": cfg.max_disp, "method": cfg.cost.method,
@@ -155,11 +176,13 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
         from .integrity import file_entries
 
         write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence,
-                                                      disp_range),
+                                                      disp_range, max_depth),
                                        "disp_range_used": None if used is None else list(used),
                                        "size": list(disp.shape), "outputs": written,
-                                       "files": file_entries(target, written), "timings": timings})
-    return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run}
+                                       "files": file_entries(target, written), "timings": timings,
+                                       "warnings": list(warned)})
+    return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run,
+            "warnings": list(warned)}
 
 
 def _check_rectified(sample, mode: str, need: bool = False):
@@ -194,6 +217,49 @@ def _disp_range(option, check, width: int):
         raise StereoInputError(f"--disp-range auto found too few feature matches ({check.matches}) to tell the "
                                "disparity range; give --disp-range MIN MAX or --max-disp")
     return found
+
+
+#: warn when more than this share of the confident pixels sit at an end of the disparity range
+RANGE_SHARE = 0.01
+#: "confident": confidence at least this (:func:`stereojax.refine.confidence`)
+RANGE_CONFIDENCE = 0.5
+
+
+def range_warning(disp, conf, lo: int, hi: int, width: int, pinned_low: bool = False) -> str | None:
+    """One line when more than :data:`RANGE_SHARE` of the confident pixels (confidence >=
+    :data:`RANGE_CONFIDENCE`) sit within 1.5 px of the top of the searched range MIN <= d < MAX (or,
+    with ``pinned_low``, of its bottom): the scene likely reaches beyond it and those pixels are
+    pinned at the limit. The line gives the share and a wider range to try; None when the range
+    holds the scene."""
+    d, c = np.asarray(disp), np.asarray(conf)
+    sure = np.isfinite(d) & (c >= RANGE_CONFIDENCE)
+    n = int(sure.sum())
+    if n == 0:
+        return None
+    top = float(np.mean(d[sure] >= hi - 1.5))
+    low = float(np.mean(d[sure] <= lo + 0.5)) if pinned_low else 0.0
+    if max(top, low) <= RANGE_SHARE:
+        return None
+    span = hi - lo
+    if top >= low:
+        new_hi = min(lo + 2 * span, width - 1)
+        new_hi = -(-new_hi // 16) * 16 if new_hi + 15 < width else new_hi
+        suggest = f"--max-disp {new_hi}" if lo == 0 else f"--disp-range {lo} {new_hi}"
+        return (f"{100 * top:.1f} % of the confident pixels sit at the top of the disparity range (d >= {hi - 1} "
+                f"of {lo} <= d < {hi}): the scene likely reaches further; try {suggest} or --disp-range auto")
+    new_lo = max(lo - span // 2, -(width - 2))
+    return (f"{100 * low:.1f} % of the confident pixels sit at the bottom of the disparity range (d <= {lo} of "
+            f"{lo} <= d < {hi}): try --disp-range {new_lo} {hi} or --disp-range auto")
+
+
+def _warn_range(disp, conf, lo, hi, width, pinned_low=False) -> None:
+    import warnings
+
+    from .errors import InputWarning
+
+    line = range_warning(disp, conf, lo, hi, width, pinned_low)
+    if line:
+        warnings.warn(line, InputWarning, stacklevel=3)
 
 
 def _check_depth(disp, calib) -> None:
@@ -239,7 +305,7 @@ def _reusable(pair, out: Path, resolve, opts: dict, verify: bool = False) -> tup
             return False, None
         height, width = stored["size"]
         record = frame_record(resolve(width, height), opts["calib"], opts["ply"], left_p, right_p,
-                              opts["min_confidence"], opts.get("disp_range"))
+                              opts["min_confidence"], opts.get("disp_range"), opts.get("max_depth"))
         problem = frame_problem(out / name, record, verify)
         if problem is None:
             return True, None
@@ -251,7 +317,7 @@ def _reusable(pair, out: Path, resolve, opts: dict, verify: bool = False) -> tup
 def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = False,
                   devices: list | None = None, overwrite: bool = False, min_confidence: float = 0.0,
                   check_rectified: str = "warn", tile: str = "auto", disp_range=None, verify: bool = False,
-                  unmatched=None) -> dict:
+                  unmatched=None, max_depth: float | None = None, announced: str | None = None) -> dict:
     """Every ``(name, left, right)`` pair into ``out/<name>/``: frames already complete with
     this run's settings are skipped (all computed with ``overwrite``), one compiled chain per
     size bucket, a progress bar with frames/s and the time left, one line per failed pair (the
@@ -260,7 +326,8 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     A frame recorded as complete is kept only when each of its files has its recorded size
     (``verify``: and its recorded SHA-256); one that fails is computed again and named in one
     line and in ``summary.json``'s ``damaged``. ``unmatched``: input names that had no partner
-    (:func:`stereojax.data.pairs.find_pairs`), reported in summary.json.
+    (:func:`stereojax.data.pairs.find_pairs`), reported in summary.json. ``announced``: the
+    method line the caller printed already (a frame that runs another method prints its own).
 
     The batch holds ``out``'s lock (:func:`stereojax.outputs.folder_lock`): a second batch on
     the same folder is refused with :class:`~stereojax.errors.OutputBusyError` (exit code 8).
@@ -272,7 +339,7 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     with folder_lock(output_folder(out), "predict"):
         return _predict_batch_locked(pairs, out, resolve, dict(
             calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile,
-            disp_range=disp_range), devices, overwrite, verify, unmatched)
+            disp_range=disp_range, max_depth=max_depth), devices, overwrite, verify, unmatched, announced)
 
 
 def _remove_stale(out: Path) -> None:
@@ -288,7 +355,7 @@ def _remove_stale(out: Path) -> None:
 
 
 def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devices, overwrite: bool,
-                          verify: bool, unmatched) -> dict:
+                          verify: bool, unmatched, announced) -> dict:
     from tqdm import tqdm
 
     from .devices import map_frames
@@ -313,7 +380,7 @@ def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devic
         except (StereoError, OSError) as exc:
             return pair, None, exc
 
-    rows, failed, described, interrupted = [], [], set(), None
+    rows, failed, described, interrupted = [], [], {announced} - {None}, None
     t_start = time.perf_counter()
     with tqdm(total=len(pairs), initial=len(skipped), desc="predict", unit="frame", file=sys.stderr,
               dynamic_ncols=True) as bar:
@@ -338,11 +405,11 @@ def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devic
                     disp, timings, run = result["disparity"], result["timings"], result["run"]
                     if run.description not in described:
                         described.add(run.description)
-                        tqdm.write(f"stereojax predict: method: {run.description}", file=sys.stderr)
+                        tqdm.write(f"stereojax predict: {name}: method: {run.chosen_line}", file=sys.stderr)
                     rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
                                  "device": timings["device"], "bucket": timings["bucket"],
                                  "width": int(disp.shape[1]), "height": int(disp.shape[0]),
-                                 "rss_mb": current_rss_bytes() / 2 ** 20})
+                                 "rss_mb": current_rss_bytes() / 2 ** 20, "warnings": result["warnings"]})
                     bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
         except Interrupted as stop:
             interrupted = stop
@@ -357,6 +424,8 @@ def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devic
                "frames_per_s": len(rows) / wall if wall > 0 else 0.0,
                "frames_per_s_warm": len(rows) * n_dev / compute if compute > 0 else 0.0,
                "compile_s": sum(r["compile_s"] for r in rows), "peak_rss_mb": peak_rss_bytes() / 2 ** 20,
+               "warnings": sum(len(r["warnings"]) for r in rows),
+               "frames_with_warnings": [r["frame"] for r in rows if r["warnings"]],
                "per_frame": rows, "skipped_frames": skipped, "damaged": damaged,
                "unmatched": list(unmatched or [])}
     write_json(out / "summary.json", summary)
@@ -384,5 +453,7 @@ def summary_line(s: dict, out: Path) -> str:
             f"after {s['compile_s']:.1f} s compiling), peak RSS {s['peak_rss_mb'] / 1024:.2f} GiB; "
             f"summary.json" + (f"; {len(failed)} failed: " + ", ".join(f["frame"] for f in failed[:10])
                                if failed else "")
+            + (f"; {s['warnings']} warning(s) in {len(s['frames_with_warnings'])} frame(s) (summary.json, "
+               "frame.json)" if s.get("warnings") else "")
             + (f"; {len(s['damaged'])} damaged frame(s) computed again" if s.get("damaged") else "")
             + (f"; {len(s['unmatched'])} image(s) without a partner" if s.get("unmatched") else ""))

@@ -8,6 +8,7 @@ either the complete file or none.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -26,25 +27,56 @@ DEFAULT_MAX_DISP = KITTI_MAX_DISP     # 228, the KITTI search range of the data 
 # ---- helpers -----------------------------------------------------------------------------------
 
 def _resolve(args, width: int = 0, height: int = 0, dataset: str | None = None, max_disp: int | None = None):
-    """What runs for this command line and input (:func:`stereojax.models.resolve`)."""
+    """What runs for this command line and input (:func:`stereojax.models.resolve`). The number
+    of disparities: ``max_disp``, else ``--max-disp`` when given, else a ``--config`` file's
+    ``max_disp``, else 228 (KITTI's); a ``--max-disp`` given beside a config file wins."""
     from .config import StereoConfig
     from .models import resolve
 
     if max_disp is None:
         max_disp = getattr(args, "max_disp", None)
-    md = DEFAULT_MAX_DISP if max_disp is None else max_disp
     config = StereoConfig.from_file(args.config) if getattr(args, "config", None) else None
+    if max_disp is None:
+        max_disp = config.max_disp if config is not None else DEFAULT_MAX_DISP
     return resolve(args.method, getattr(args, "weights", None), config, width, height, dataset,
-                   md, getattr(args, "exact_head", False))
+                   max_disp, getattr(args, "exact_head", False), getattr(args, "scene", "auto"))
 
 
-def _calibration(args):
+def _calibration(args, show: bool = True):
+    """(the calibration of the command line or None, its one-line description or None)."""
     from .calibration import calibration_from_options, describe
 
     calib, source = calibration_from_options(args.calib, args.baseline, args.focal, args.doffs)
-    if calib is not None:
-        print(describe(calib, source))
-    return calib
+    line = describe(calib, source) if calib is not None else None
+    if show and line:
+        print(line)
+    return calib if show else (calib, line)
+
+
+def _max_disp_note(args) -> str | None:
+    """The line that says which of ``--max-disp`` and a ``--config`` file's ``max_disp`` runs."""
+    from .config import StereoConfig
+
+    if not getattr(args, "config", None) or getattr(args, "disp_range", None):
+        return None
+    file_md = StereoConfig.from_file(args.config).max_disp
+    if args.max_disp is None or args.max_disp == file_md:
+        return f"{file_md} disparities from {args.config}"
+    return f"--max-disp {args.max_disp} overrides max_disp {file_md} of {args.config}"
+
+
+def _first_size(pairs) -> tuple[int, int] | None:
+    """(width, height) of the first readable left image of ``pairs`` (None: none of the first
+    few reads; the frames report their own errors)."""
+    from .data.io import read_image
+
+    for _, left, _ in pairs[:3]:
+        try:
+            img = read_image(left)
+        except StereoError:
+            continue
+        return img.shape[1], img.shape[0]
+    return None
 
 
 def _disp_range_arg(values):
@@ -70,28 +102,43 @@ def _disp_range_arg(values):
 def cmd_predict(args) -> int:
     from .batch import pair_line, predict_batch, predict_pair, summary_line
     from .compile_cache import enable
+    from .data.pairs import unmatched_line
     from .devices import local_devices
+    from .errors import ConfigError
     from .progress import Phases
 
     pairs, batch = find_pairs(args.inputs, args.pairs)
     devices = local_devices(args.devices)          # a bad --devices is refused for one pair too
+    calib, calib_line = _calibration(args, show=False)
+    if args.ply and calib is None:
+        raise ConfigError("--ply needs a calibration for depth: give --calib FILE, or --baseline and --focal")
+    if args.max_depth is not None and not args.max_depth > 0:
+        raise ConfigError(f"--max-depth must be a positive number of metres, got {args.max_depth}")
+    if args.max_depth is not None and calib is None:
+        raise ConfigError("--max-depth needs a calibration for depth: give --calib FILE, or --baseline and --focal")
     out = output_folder(args.out)
-    calib = _calibration(args)
     enable()
 
     opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified,
-                tile=args.tile, disp_range=_disp_range_arg(args.disp_range))
+                tile=args.tile, disp_range=_disp_range_arg(args.disp_range), max_depth=args.max_depth)
     resolve = lambda w, h: _resolve(args, w, h)  # noqa: E731
+    size = _first_size(pairs)
+    announced = None
+    if size is not None:                           # the first line: what runs, and why
+        run = resolve(*size)
+        announced = run.description
+        print(f"stereojax: method: {run.chosen_line}", flush=True)
+    for line in (_max_disp_note(args), calib_line):
+        if line:
+            print(f"stereojax: {line}", flush=True)
     if not batch:
         print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
         return 0
-    from .data.pairs import unmatched_line
-
     unmatched = getattr(pairs, "unmatched", [])
     if unmatched:
         print(f"stereojax predict: {unmatched_line(unmatched)}", file=sys.stderr)
     s = predict_batch(pairs, out, resolve, devices=devices, overwrite=args.overwrite, verify=args.verify,
-                      unmatched=unmatched, **opts)
+                      unmatched=unmatched, announced=announced, **opts)
     print(summary_line(s, out))
     return 2 if s["failed"] else 0
 
@@ -138,7 +185,10 @@ def cmd_train(args) -> int:
         cfg = config_from_options(args.preset, args.head, args.loss, args.features,
                                   args.widths,
                                   args.distill_weight if args.distill else None, args.augment,
-                                  steps=args.steps, seed=args.seed, delta=args.delta, lr=args.lr)
+                                  steps=args.steps, seed=args.seed, delta=args.delta, lr=args.lr,
+                                  checkpoint_every=args.checkpoint_every)
+    if args.checkpoint_every:          # beside a --config file too
+        cfg = dataclasses.replace(cfg, checkpoint_every=args.checkpoint_every).validate()
     summary = train_on_dataset(cfg, args.data, args.dataset, args.frames, args.val_frames, out,
                                resume=args.resume, devices=args.devices, init=args.init, distill=args.distill)
     print(json.dumps(summary, indent=2, default=_json_default))
@@ -195,6 +245,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "searched)")
         sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides the chain "
                         "settings of --method; its cost.method must fit --method)")
+        sp.add_argument("--scene", default="auto", choices=["auto", "road", "indoor"], help="--method best: the "
+                        "model for road frames (KITTI 2015) or indoor scenes (Middlebury); auto (default): road "
+                        "when the frame is at least 2.5 times as wide as high, or by --dataset")
 
     def add_devices(sp):
         sp.add_argument("--devices", type=int, help="spread the frames over this many local devices, "
@@ -207,7 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "or one KITTI training/ or testing/ folder, or one text file of 'LEFT RIGHT' lines")
     sp.add_argument("--pairs", help="text file with one 'LEFT RIGHT' pair per line")
     sp.add_argument("--out", required=True, help="output folder (a batch writes OUT/<frame>/...)")
-    sp.add_argument("--max-disp", type=int, default=DEFAULT_MAX_DISP, help="number of disparities (default 228)")
+    sp.add_argument("--max-disp", type=int, help="number of disparities searched, 0 <= d < N (default: a --config "
+                    "file's max_disp, else 228 = KITTI's; see the README on choosing it; given beside --config, "
+                    "this one wins)")
     sp.add_argument("--disp-range", nargs="+", metavar="MIN MAX|auto", help="search the disparities MIN <= d < MAX "
                     "instead of 0 .. max-disp - 1 (MIN may be negative); auto: from the feature matches of the "
                     "rectification check, printed and written to frame.json")
@@ -216,7 +271,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")
     sp.add_argument("--calib", help="calibration file for depth: KITTI calib_cam_to_cam.txt or calib/<frame>.txt, "
                     "Middlebury calib.txt, OpenCV YAML or JSON with K and baseline (m)")
-    sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs calibration)")
+    sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs a calibration; "
+                    "refused without one)")
+    sp.add_argument("--max-depth", type=float, metavar="M", help="no depth (0) in depth.npy/depth.png and no point "
+                    "in points.ply beyond M metres (default: none; depth.png itself holds at most 255.99 m)")
     sp.add_argument("--tile", default="auto", choices=["auto", "off"], help="a pair too large for the memory limit: "
                     "auto computes it in horizontal bands (default), off refuses it (exit code 6)")
     sp.add_argument("--check-rectified", default="warn", choices=["warn", "error", "off"], help="check with "
@@ -262,7 +320,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--dataset", default="kitti2015", choices=["kitti2015", "kitti2012", "middlebury"])
     sp.add_argument("--frames", default="000001-000020", help="training frames or scenes (comma list)")
     sp.add_argument("--val-frames", help="validation frames (patch error)")
-    sp.add_argument("--preset", default="cpu", choices=["cpu", "paper", "tiny"])
+    sp.add_argument("--preset", default="cpu", choices=["cpu", "paper", "tiny"], help="cpu (default): the "
+                    "paper's head on a tower of 64 maps, 50 000 steps (hours on 2 cores); paper: 112 maps and the "
+                    "paper's schedule, 240 000 steps; tiny: 8 maps for 12 steps, for tests -- it learns nothing")
+    sp.add_argument("--checkpoint-every", type=int, metavar="N", help="write OUT/checkpoint.msgpack every N steps "
+                    "(default: the preset's, 1000 for cpu); SIGINT/SIGTERM also write one")
     sp.add_argument("--head", default="downsize", choices=["downsize", "uniform", "cosine"])
     sp.add_argument("--loss", choices=["bce", "relaxed", "hinge"], help="default: relaxed, or hinge for cosine")
     sp.add_argument("--delta", type=float, help="margin of the relaxed loss (default 0.05)")
@@ -308,6 +370,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"stereojax {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except Interrupted as exc:
+        note = getattr(exc, "note", None)
+        if note:
+            print(f"stereojax {args.command}: {exc}: {note}", file=sys.stderr)
+            return exc.exit_code
         done = exc.summary
         what = f": {done['ok']} of {done['frames']} frames done, summary.json written" if done else ""
         print(f"stereojax {args.command}: {exc}{what}; run the same command to continue", file=sys.stderr)

@@ -6,8 +6,9 @@ from pathlib import Path
 
 from .data import io
 from .data.io import write_json
-from .evaluation import chain_method, evaluate_frames
-from .outputs import color_scale, write_prediction
+from .evaluation import evaluate_frames
+from .outputs import color_scale, write_confidence, write_prediction
+from .pipeline import Predictor
 from .progress import Phases
 
 
@@ -17,18 +18,26 @@ def run_demo(sample, run, out: Path) -> dict:
     written into ``out``, each step shown on stdout. Returns the frame's scores."""
     max_disp = run.config.max_disp
     print(f"built-in sample: {sample.name} {sample.left.shape[1]}x{sample.left.shape[0]}, "
-          f"{max_disp} disparities, {run.description}")
+          f"{max_disp} disparities, {run.chosen_line}")
     phases = Phases()
     phases.start("loading the model" if run.method == "learned" else "preparing")
     model = run.model()
     phases.done()
     kept = {}
-    result = evaluate_frames([sample], {"pipeline": chain_method(run.config, model, phases)}, max_disp,
+
+    def with_confidence(s, md):
+        predictor = Predictor(run.config.with_max_disp(md), model, confidence=True)
+        (disp, conf), timings = predictor.timed(s.left, s.right, phases)
+        kept["confidence"] = conf
+        return disp, timings
+
+    result = evaluate_frames([sample], {"pipeline": with_confidence}, max_disp,
                              on_frame=lambda row, s, disparities: kept.update(disparities))
     disp, m = kept["pipeline"], result["frames"][0]["pipeline"]
-    phases.start("writing disparity, depth, point cloud and error map")
+    phases.start("writing disparity, confidence, depth, point cloud and error map")
     written = write_prediction(out, "", disp, sample.calib, sample.left, ply=True,
                                color_max=color_scale(disp, sample.gt, sample.gt_valid))
+    written += write_confidence(out, "", kept["confidence"])
     io.write_png(out / "left.png", sample.left)
     io.write_error_map(out / "error.png", disp, sample.gt, sample.gt_valid)
     write_json(out / "metrics.json", {**m, "method": run.config.cost.method, "max_disp": max_disp})

@@ -87,8 +87,9 @@ def evaluate(disp: np.ndarray, gt: np.ndarray, gt_valid: np.ndarray | None,
     """Score ``f32[H, W]`` disparity against ``f32[H, W]`` ground truth.
 
     Args:
-        disp: estimated disparity. Pixels that are NaN, infinite or negative, or False in
-            ``est_valid``, have no estimate (negative = invalid, as in the KITTI devkit).
+        disp: estimated disparity. Pixels that are NaN, infinite, negative or exactly 0, or
+            False in ``est_valid``, have no estimate: 0 is "no value" in KITTI's 16-bit PNGs
+            (the devkit reads it as invalid), and stereojax writes 0 there too.
         gt: ground-truth disparity.
         gt_valid: ``bool[H, W]`` pixels with ground truth (None: finite and > 0). Non-finite
             ground truth is never scored.
@@ -121,7 +122,7 @@ def evaluate(disp: np.ndarray, gt: np.ndarray, gt_valid: np.ndarray | None,
     g = g.astype(np.float32, copy=False)
     with np.errstate(invalid="ignore"):
         gv = np.isfinite(g) & (g > 0) if gt_valid is None else _mask(gt_valid, d.shape, "gt_valid") & np.isfinite(g)
-        est = np.isfinite(d) & (d >= 0)
+        est = np.isfinite(d) & (d > 0)
     if est_valid is not None:
         est &= _mask(est_valid, d.shape, "est_valid")
     n_gt = int(gv.sum())

@@ -67,15 +67,37 @@ def shipped_name(path) -> str | None:
     return None
 
 
-def weights_for_input(width: int, height: int, dataset: str | None = None) -> Path | None:
-    """The shipped model ``--method best`` runs for an input (:data:`BEST`): by data set when
-    ``dataset`` is given (KITTI 2012 and 2015 -> the KITTI choice), else by shape: KITTI-like
-    wide road frames (width >= 2.5 x height, KITTI is 3.3) -> the KITTI choice, other pairs ->
-    the Middlebury model. None when that model is not shipped."""
+#: ``--scene``: the kind of input ``--method best`` picks a model for (auto: by shape)
+SCENES = {"road": "kitti", "indoor": "middlebury"}
+#: ``--scene auto``: a frame at least this many times wider than high is a road frame (KITTI is 3.3)
+ROAD_ASPECT = 2.5
+
+
+def best_kind(width: int, height: int, dataset: str | None = None, scene: str = "auto") -> tuple[str, str]:
+    """(kind of input, why) for ``--method best``: "kitti" (road) or "middlebury" (indoor), from
+    ``scene`` ("road", "indoor"), else the data set, else the shape (width >= ROAD_ASPECT x
+    height: road)."""
+    from .errors import ConfigError
+
+    if scene not in ("auto", *SCENES):
+        raise ConfigError(f"--scene must be auto, road or indoor, got {scene!r}")
+    if scene != "auto":
+        return SCENES[scene], f"--scene {scene}"
     if dataset is not None:
         kind = "kitti" if dataset.startswith("kitti") else "middlebury"
-    else:
-        kind = "kitti" if width >= 2.5 * height else "middlebury"
+        return kind, f"data set {dataset}"
+    if width >= ROAD_ASPECT * height:
+        return "kitti", (f"{width}x{height} is at least {ROAD_ASPECT} times as wide as high: a road frame "
+                         "(--scene indoor overrides)")
+    return "middlebury", (f"{width}x{height} is less than {ROAD_ASPECT} times as wide as high: an indoor "
+                          "scene (--scene road overrides)")
+
+
+def weights_for_input(width: int, height: int, dataset: str | None = None, scene: str = "auto") -> Path | None:
+    """The shipped model ``--method best`` runs for an input (:data:`BEST`, :func:`best_kind`):
+    the KITTI choice for road frames, the Middlebury model for indoor scenes. None when that
+    model is not shipped."""
+    kind, _ = best_kind(width, height, dataset, scene)
     path = WEIGHTS_DIR / f"{SHIPPED[BEST[kind]]}.msgpack"
     return path if path.is_file() else None
 
@@ -145,6 +167,8 @@ class Resolved:
     config: object
     exact_head: bool = False
     from_file: bool = False
+    #: why this method and model run (e.g. the ``--method best`` rule that picked them)
+    reason: str = ""
 
     @property
     def description(self) -> str:
@@ -155,6 +179,11 @@ class Resolved:
         label = f"shipped model {name}" if name else f"weights {Path(self.weights).name}"
         head = ", exact head (every disparity)" if self.exact_head and not self.from_file else ""
         return f"learned cost, {label}{head}"
+
+    @property
+    def chosen_line(self) -> str:
+        """What runs and why, in one line (the first line ``predict`` prints)."""
+        return f"{self.description} ({self.reason})" if self.reason else self.description
 
     def with_max_disp(self, max_disp: int) -> "Resolved":
         return dataclasses.replace(self, config=self.config.with_max_disp(max_disp))
@@ -176,14 +205,17 @@ _LOADED_LOCK = threading.Lock()
 
 
 def resolve(method: str = "best", weights=None, config=None, width: int = 0, height: int = 0,
-            dataset: str | None = None, max_disp: int = 228, exact_head: bool = False) -> Resolved:
+            dataset: str | None = None, max_disp: int = 228, exact_head: bool = False,
+            scene: str = "auto") -> Resolved:
     """What runs for an input, as values (nothing is changed in place).
 
     method: "best" (the default: the shipped model that fits the input, :func:`weights_for_input`,
     or census when it is not shipped), "learned", "census" or "sad". weights: a checkpoint path
     or a shipped name (learned and best only). config: a StereoConfig that replaces the chain
     settings (a classical one turns best into that method). width, height, dataset: the input,
-    for best. exact_head: the learned head at every disparity instead of the candidates.
+    for best; scene: "auto" (by shape or data set), "road" or "indoor" (:func:`best_kind`).
+    exact_head: the learned head at every disparity instead of the candidates. ``reason`` of the
+    result says why that method and model run.
     """
     from .config import preset
     from .errors import ConfigError
@@ -192,19 +224,25 @@ def resolve(method: str = "best", weights=None, config=None, width: int = 0, hei
         weights = shipped_weights(weights)
     elif weights:
         check_weights_exist(weights)
+    reason = f"--method {method}"
     if method == "best":
         if config is not None and config.cost.method != "learned":
             method = config.cost.method          # a classical chain from the config
+            reason = f"--method best with a --config of cost.method {method}"
         elif weights:
             method = "learned"
+            reason = "--method best with --weights"
         else:
             # the same model and chain settings on every backend (the exact head only on request)
-            path = weights_for_input(width, height, dataset)
+            kind, why = best_kind(width, height, dataset, scene)
+            path = weights_for_input(width, height, dataset, scene)
             method, weights = ("learned", path) if path else ("census", None)
+            reason = f"--method best: {why}" + ("" if path else f"; the {BEST[kind]} model is not shipped")
     if method != "learned" and weights:
         raise ConfigError(f"--weights needs --method learned or best (got --method {method})")
     if method == "learned" and not weights:
         weights = shipped_weights("kitti2015")
+        reason = "--method learned without --weights: the shipped kitti2015 model"
     if config is not None:
         cfg = config.with_max_disp(max_disp)
     elif method == "learned":
@@ -214,4 +252,4 @@ def resolve(method: str = "best", weights=None, config=None, width: int = 0, hei
             cfg = dataclasses.replace(cfg, cost=dataclasses.replace(cfg.cost, candidates=0)).validate()
     else:
         cfg = preset(method, max_disp)
-    return Resolved(method, Path(weights) if weights else None, cfg, bool(exact_head), config is not None)
+    return Resolved(method, Path(weights) if weights else None, cfg, bool(exact_head), config is not None, reason)

@@ -96,25 +96,40 @@ def write_confidence(out: Path, stem: str, confidence) -> list[str]:
     return [f"{stem}confidence.png", f"{stem}confidence.npy"]
 
 
-def write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=False, color_max=None):
-    """Write disparity (KITTI png + colour png) and depth files; returns the written names.
-    Pixels without an estimate (NaN, inf, negative) are 0 in the PNGs and the depth."""
+def color_legend(top: float) -> dict:
+    """What ``disparity_color.png``'s colours mean (its sidecar ``disparity_color.json``): the
+    colour map, the disparities of its two ends in pixels, and the colour of "no estimate"."""
+    return {"image": "disparity_color.png", "colormap": "turbo", "unit": "px",
+            "min": 0.0, "max": round(top, 3), "clipped_above": True, "no_estimate": [0, 0, 0],
+            "note": "colour = colormap(d / max); disparities above max have the top colour"}
+
+
+def write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=False, color_max=None,
+                     max_depth: float | None = None):
+    """Write disparity (KITTI png, PFM, colour png and its scale ``disparity_color.json``) and,
+    with ``calib``, depth files; returns the written names. Pixels without an estimate (NaN,
+    inf, negative) are 0 in the PNGs and the depth; with ``max_depth``, so are points farther
+    than that (metres), and they are left out of points.ply."""
     from .data import io
     from . import depth as depth_mod
 
     written = []
     io.write_kitti_disparity(out / f"{stem}disparity.png", disp)
     io.write_pfm(out / f"{stem}disparity.pfm", disp)
-    io.write_color_disparity(out / f"{stem}disparity_color.png", disp,
-                             max_disp=color_max or color_scale(disp))
-    written += [f"{stem}disparity.png", f"{stem}disparity.pfm", f"{stem}disparity_color.png"]
+    top = float(color_max or color_scale(disp))
+    io.write_color_disparity(out / f"{stem}disparity_color.png", disp, max_disp=top)
+    io.write_json(out / f"{stem}disparity_color.json", color_legend(top))
+    written += [f"{stem}disparity.png", f"{stem}disparity.pfm", f"{stem}disparity_color.png",
+                f"{stem}disparity_color.json"]
     if calib is not None:
         z = depth_mod.disparity_to_depth(disp, calib.baseline, calib.focal, calib.doffs)
+        if max_depth is not None:
+            z = np.where(z <= max_depth, z, 0.0).astype(np.float32)
         depth_mod.write_depth(out / f"{stem}depth.png", z)
         depth_mod.write_depth(out / f"{stem}depth.npy", z)
         written += [f"{stem}depth.png", f"{stem}depth.npy"]
         if ply and image is not None:
-            xyz, rgb = depth_mod.point_cloud(disp, image, calib)
+            xyz, rgb = depth_mod.point_cloud(disp, image, calib, max_depth=max_depth)
             depth_mod.write_ply(out / f"{stem}points.ply", xyz, rgb)
             written.append(f"{stem}points.ply")
     return written

@@ -28,6 +28,7 @@ import optax
 from . import checkpoint, losses
 from .config import dataclass_from_dict
 from .errors import ConfigError, TrainingError
+from .interrupt import Interrupted, stop_on_signals
 from .nets import MatchNet, NetConfig, init_params, similarity
 from .sampling import PatchData, SamplerConfig, build_patch_data, sample_batch, sample_distill_batch
 
@@ -333,7 +334,8 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
         # a checkpoint from before a config field existed has that field's default
         there = {**_flat(json.loads(json.dumps(TrainConfig().to_dict()))), **_flat(stored)}
         here = _flat(wanted)
-        differ = sorted(k for k in here if there.get(k) != here[k])
+        # how often to write and log does not change what is learned: it may differ on resume
+        differ = sorted(k for k in here if there.get(k) != here[k] and k not in _FREE_ON_RESUME)
         if differ:
             shown = ", ".join(f"{k} = {there.get(k)!r} there, {here[k]!r} here" for k in differ[:3])
             raise ConfigError(f"cannot resume {ckpt}: it was made with another training config ({shown}"
@@ -359,6 +361,40 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
 
         teacher_args = (jax.device_put(teacher.variables, NamedSharding(mesh, PartitionSpec())), teacher.net)
     last_good = start
+    latest = {"state": state}        # the last completed step's state, kept if a signal stops the loop
+    try:
+        with stop_on_signals():
+            state, history, last_val, last_good = _steps(
+                bar, latest, data, val, val_samples, cfg, mesh, teacher_args, writer, ckpt, info, main_process,
+                start, end, t0, samples_per_step, history, last_val, last_good)
+    except Interrupted as stop:
+        state = latest["state"]
+        done = int(state["step"])
+        bar.close()
+        writer.close()
+        if main_process and done > last_good:
+            checkpoint.save(ckpt, state, _state_config(cfg, info))
+        kept = (f"the checkpoint of step {done} is kept in {ckpt}" if done > start or ckpt.exists()
+                else "no step was completed, nothing kept")
+        stop.summary = {"steps": done, "of": cfg.steps, "checkpoint": str(ckpt) if ckpt.exists() else None}
+        stop.note = f"stopped at step {done} of {cfg.steps}; {kept}; run the same command with --resume to continue"
+        raise
+    writer.close()
+    elapsed = time.perf_counter() - t0
+    summary = {"steps": int(state["step"]), "seconds": elapsed,
+               "samples_per_s": (end - start) * samples_per_step / max(elapsed, 1e-9),
+               "final_train": history[-1] if history else None, "validation": last_val,
+               "train_pixels": data.size, "val_pixels": val.size if val is not None else 0,
+               "devices": 1 if mesh is None else mesh.size}
+    if main_process:
+        write_json(out / "train_summary.json", summary)
+    return summary
+
+
+def _steps(bar, latest, data, val, val_samples, cfg, mesh, teacher_args, writer, ckpt, info, main_process,
+           start, end, t0, samples_per_step, history, last_val, last_good):
+    """The steps of :func:`fit`; ``latest["state"]`` always holds the last completed step's state."""
+    state = latest["state"]
     for step in bar:
         new_state, m = train_step(state, data, cfg, mesh, *teacher_args)
         loss = float(m["loss"])
@@ -367,6 +403,7 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
             raise TrainingError(f"loss became {loss} at step {step}; stopped, the last good checkpoint "
                                 f"(step {last_good}) is kept in {ckpt}")
         state = new_state
+        latest["state"] = state
         done = step + 1
         if done % cfg.log_every == 0 or done == end:
             rate = (done - start) * samples_per_step / max(time.perf_counter() - t0, 1e-9)
@@ -387,16 +424,11 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
             if main_process:
                 checkpoint.save(ckpt, state, _state_config(cfg, info))
             last_good = done
-    writer.close()
-    elapsed = time.perf_counter() - t0
-    summary = {"steps": int(state["step"]), "seconds": elapsed,
-               "samples_per_s": (end - start) * samples_per_step / max(elapsed, 1e-9),
-               "final_train": history[-1] if history else None, "validation": last_val,
-               "train_pixels": data.size, "val_pixels": val.size if val is not None else 0,
-               "devices": 1 if mesh is None else mesh.size}
-    if main_process:
-        write_json(out / "train_summary.json", summary)
-    return summary
+    return state, history, last_val, last_good
+
+
+#: TrainConfig fields that a resumed run may change (they do not change what is learned)
+_FREE_ON_RESUME = ("checkpoint_every", "log_every")
 
 
 class _NoWriter:

@@ -106,7 +106,7 @@ def _check_complete(folder: Path, expected: set[str] | None = None) -> dict:
     return {"complete": seen, "temps": temps}
 
 
-_PREDICT_OUTPUTS = {"disparity.png", "disparity.pfm", "disparity_color.png", "confidence.png", "confidence.npy",
+_PREDICT_OUTPUTS = {"disparity.png", "disparity.pfm", "disparity_color.png", "disparity_color.json", "confidence.png", "confidence.npy",
                     "depth.png", "depth.npy", "points.ply",
                     "config.json", "timings.json"}
 

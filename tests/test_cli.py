@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from stereojax.cli import main
+from stereojax.data import io
 from stereojax.errors import CheckpointError
 from stereojax.models import WEIGHTS_DIR as WEIGHTS
 
@@ -37,7 +38,7 @@ def test_predict_writes_disparity_depth_and_timings(pair_files, tmp_path, capsys
                             "--baseline", 0.54, "--focal", 721.5, "--ply"], capsys)
     assert code == 0, stdout
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(["disparity.png", "disparity.pfm", "disparity_color.png", "confidence.png", "confidence.npy", "depth.png", "depth.npy",
+    assert names == sorted(["disparity.png", "disparity.pfm", "disparity_color.png", "disparity_color.json", "confidence.png", "confidence.npy", "depth.png", "depth.npy",
                             "points.ply", "config.json", "timings.json"])
     disp = cv2.imread(str(out / "disparity.png"), cv2.IMREAD_UNCHANGED)
     assert disp.dtype == np.uint16
@@ -138,8 +139,13 @@ def test_demo_on_the_builtin_sample(tmp_path, capsys):
         assert m["method"] == "learned" and 0 < m["bad3"] < 6.0, m
     else:
         assert m["method"] == "census" and 0 < m["bad3"] < 7.0, m
-    for f in ("disparity.png", "disparity_color.png", "error.png", "left.png"):
+    for f in ("disparity.png", "disparity_color.png", "error.png", "left.png", "confidence.png", "confidence.npy"):
         assert (out / f).stat().st_size > 0
+    conf = np.load(out / "confidence.npy")                                 # the demo has its confidence map
+    assert conf.shape == io.read_pfm(out / "disparity.pfm").shape and 0 < conf.mean() < 1
+    legend = json.loads((out / "disparity_color.json").read_text())        # the colour map's scale
+    assert legend["colormap"] == "turbo" and legend["min"] == 0 and legend["max"] > 10
+    assert "data set middlebury" in stdout                                  # what runs, and why
 
 
 def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):

@@ -175,7 +175,7 @@ def test_kitti_folder_without_gt_predict_works_evaluate_says_what_is_missing(tmp
                        "--out", tmp_path / "p", *FAST], capsys)
     assert code == 0
     assert set(_check_complete(tmp_path / "p")["complete"]) == {
-        "disparity.png", "disparity.pfm", "disparity_color.png", "confidence.png", "confidence.npy", "config.json",
+        "disparity.png", "disparity.pfm", "disparity_color.png", "disparity_color.json", "confidence.png", "confidence.npy", "config.json",
         "timings.json"}
     code, _, err = _cli(["evaluate", "--data", root, "--dataset", "kitti2015", *FAST, "--out", tmp_path / "e"],
                         capsys, "KITTI folder with images but no GT (evaluate)")

@@ -51,12 +51,18 @@ def folder_pairs(left_dir: Path, right_dir: Path) -> Pairs:
 
 
 def kitti_pairs(folder: Path) -> Pairs:
-    """Pairs of a KITTI ``training/`` or ``testing/`` folder (image_2/3, image_0/1 or colored_0/1)."""
+    """Pairs of a KITTI ``training/`` or ``testing/`` folder (image_2/3, image_0/1 or colored_0/1),
+    or of a folder of Middlebury scenes (``SCENE/im0.png`` + ``SCENE/im1.png``, named by scene)."""
     for lv, rv in KITTI_VIEWS:
         if (folder / lv).is_dir() and (folder / rv).is_dir():
             return folder_pairs(folder / lv, folder / rv)
-    raise StereoInputError(f"{folder} is not a KITTI training/ or testing/ folder: none of "
-                           + ", ".join(f"{a}/ + {b}/" for a, b in KITTI_VIEWS) + " inside")
+    scenes = sorted(d for d in folder.iterdir() if d.is_dir() and (d / "im0.png").is_file()
+                    and (d / "im1.png").is_file()) if folder.is_dir() else []
+    if scenes:
+        return Pairs([(d.name, d / "im0.png", d / "im1.png") for d in scenes])
+    raise StereoInputError(f"{folder} is not a KITTI training/ or testing/ folder (none of "
+                           + ", ".join(f"{a}/ + {b}/" for a, b in KITTI_VIEWS) + " inside) nor a folder of "
+                           "Middlebury scenes (SCENE/im0.png + SCENE/im1.png)")
 
 
 def _split_line(line: str) -> list[str]:
@@ -69,18 +75,34 @@ def _split_line(line: str) -> list[str]:
     return shlex.split(line, comments=False, posix=True)
 
 
+def name_pairs(found) -> list[tuple[str, Path, Path]]:
+    """``(name, left, right)`` for ``(left, right)`` paths: the left file's stem, or, where that
+    stem repeats (Middlebury's ``SCENE/im0.png``), its folder's name; a name that still repeats
+    gets ``_2``, ``_3``, ..."""
+    stems: dict = {}
+    for left, _ in found:
+        stems[left.stem] = stems.get(left.stem, 0) + 1
+    out, seen = [], {}
+    for left, right in found:
+        name = left.stem if stems[left.stem] == 1 or not left.parent.name else left.parent.name
+        seen[name] = seen.get(name, 0) + 1
+        out.append((name if seen[name] == 1 else f"{name}_{seen[name]}", left, right))
+    return out
+
+
 def list_pairs(path: Path) -> list[tuple[str, Path, Path]]:
     """Pairs of a text file (UTF-8), one ``LEFT RIGHT`` pair per line.
 
     A path with spaces is quoted as a shell would quote it (``"my left.png" 'my right.png'`` or
     ``my\\ left.png``), or the two paths are separated by a tab. Relative paths are relative to
     the list file's folder. Blank lines and lines starting with ``#`` are skipped. A malformed
-    line is refused before anything runs, with its line number."""
+    line is refused before anything runs, with its line number. Frames are named by
+    :func:`name_pairs` (the left file's stem, or its folder where stems repeat)."""
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise StereoInputError(f"cannot read the pair list {path}: {exc}") from None
-    pairs, seen = [], {}
+    found = []
     for n, line in enumerate(lines, 1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -93,9 +115,8 @@ def list_pairs(path: Path) -> list[tuple[str, Path, Path]]:
             raise StereoInputError(f"{path}, line {n}: expected 'LEFT RIGHT' (quote paths with spaces, "
                                    f"or separate the two by a tab), got {len(parts)} field(s) in {line!r}")
         left, right = (Path(p) if Path(p).is_absolute() else path.parent / p for p in parts)
-        name = left.stem
-        seen[name] = seen.get(name, 0) + 1
-        pairs.append((name if seen[name] == 1 else f"{name}_{seen[name]}", left, right))
+        found.append((left, right))
+    pairs = name_pairs(found)
     if not pairs:
         raise StereoInputError(f"the pair list {path} holds no pairs")
     return pairs
