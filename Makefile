@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate results-evaluate bench train train-middlebury \
-        search-chain band-search middlebury-folds augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain dense-distill band-search middlebury-folds augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -67,6 +67,9 @@ results-evaluate: $(STAMP)  ## the project's evaluations behind the README table
 
 bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS -> experiments/results/bench.{json,md}
 	$(CLI) bench --data $(DATA) --out experiments/results
+
+dense-distill: $(STAMP)  ## issue 26: students distilled from the full KITTI model's band costs (targets cached in runs/dense_targets, ~45 min) -> experiments/results/dense_distill.{json,md,png}
+	$(EXP)/dense_distill.py --data $(DATA)
 
 band-search: $(STAMP)  ## band settings (width, coarse scale, widening) on KITTI 2015 000001-000019 (odd): coverage, > 3 px and time beside the full range (~10 min) -> experiments/results/band_search_census.*
 	$(PY) experiments/band_search.py --data $(DATA) --method census

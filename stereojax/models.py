@@ -44,7 +44,7 @@ def check_weights_exist(weights) -> None:
     the shipped names (and the closest one to what was typed)."""
     import difflib
 
-    if Path(weights).is_file():
+    if Path(weights).exists():          # a file, or a folder that the loader refuses by name
         return
     typed = str(weights)
     close = difflib.get_close_matches(Path(typed).stem, list(SHIPPED), n=1)

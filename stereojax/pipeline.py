@@ -576,6 +576,7 @@ def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=
                          disp_range=disp_range)(left, right)
     variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb)
+    ensure_enabled()
     return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
 
 

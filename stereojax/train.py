@@ -48,6 +48,9 @@ class TrainConfig:
       patch at a near-miss offset U[-distill_range, distill_range] px from the true match
       (:func:`stereojax.sampling.sample_distill_batch`), added to the loss on the labels. The
       teacher is given to :func:`fit`; dense heads only, without augmentation.
+    dense: weight of dense distillation (0 = off): the cross-entropy to a teacher's similarities
+      at every disparity of the band of ``dense_batch`` cached target pixels per step
+      (:mod:`stereojax.dense_distill`; the targets are given to :func:`fit`).
     """
 
     net: NetConfig = field(default_factory=NetConfig)
@@ -68,6 +71,8 @@ class TrainConfig:
     val_pairs: int = 3000
     distill: float = 0.0
     distill_range: float = 6.0
+    dense: float = 0.0
+    dense_batch: int = 64
 
     def validate(self) -> "TrainConfig":
         self.net.validate()
@@ -87,6 +92,9 @@ class TrainConfig:
                               f"{self.distill}, {self.distill_range}")
         if self.distill and (self.net.head == "cosine" or self.sampler.augment.enabled):
             raise ConfigError("distillation trains a dense head without patch augmentation")
+        if self.dense < 0 or self.dense_batch < 1 or (self.dense and self.net.head == "cosine"):
+            raise ConfigError(f"need dense >= 0, dense_batch >= 1 and a dense head for dense distillation, got "
+                              f"{self.dense}, {self.dense_batch}, head {self.net.head!r}")
         if self.lr <= 0 or not 0 <= self.momentum < 1 or not 0 < self.decay <= 1 or not 0 <= self.decay_from <= 1:
             raise ConfigError("need lr > 0, 0 <= momentum < 1, 0 < decay <= 1, 0 <= decay_from <= 1")
         return self
@@ -212,7 +220,7 @@ def _check_batch(cfg: TrainConfig, mesh) -> None:
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "mesh", "teacher_net"))
-def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None, teacher=None, teacher_net=None):
+def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None, teacher=None, teacher_net=None, dense=None):
     """One SGD step on the batch of ``state["step"]``; returns (new state, metrics).
 
     mesh: None (one device) or a ``("data",)`` mesh (:func:`make_mesh`): the global batch is
@@ -222,6 +230,7 @@ def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None, teacher=None
 
     teacher, teacher_net: the variables and (static) NetConfig of the teacher network when
     ``cfg.distill > 0``: its similarities on the batch's pairs are the soft targets.
+    dense: :class:`~stereojax.dense_distill.DenseTargets` when ``cfg.dense > 0``.
     """
     model = MatchNet(cfg.net)
     key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), state["step"])
@@ -251,6 +260,11 @@ def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None, teacher=None
         if distill:
             loss = loss + cfg.distill * jnp.mean(jnp.stack(
                 [losses.bce(s, t).mean() for s, t in zip(scores, targets)]))
+        if cfg.dense > 0:
+            from .dense_distill import dense_loss
+
+            loss = loss + cfg.dense * dense_loss(model, variables, dense, jax.random.fold_in(key, 11),
+                                                 cfg.dense_batch, cfg.net.patch_size)
         return loss, (updates, s_pos, s_neg)
 
     (loss, (updates, s_pos, s_neg)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state["params"])
@@ -293,7 +307,7 @@ def _flat(d: dict, prefix: str = "") -> dict:
 
 def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None, out_dir,
         resume: bool = False, progress: bool = True, stop_after: int | None = None,
-        info: dict | None = None, devices: int | None = 1, init=None, teacher=None) -> dict[str, Any]:
+        info: dict | None = None, devices: int | None = 1, init=None, teacher=None, dense=None) -> dict[str, Any]:
     """Train, checkpointing to ``out_dir/checkpoint.msgpack``; returns a summary dict.
 
     init: a :class:`~stereojax.learned_cost.LearnedModel` (same network) to start from instead
@@ -305,6 +319,7 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     parallelism over this many devices (None: all; see :func:`train_step`); only process 0
     of a multi-process run writes checkpoints, logs and TensorBoard. teacher: the
     :class:`~stereojax.learned_cost.LearnedModel` whose scores ``cfg.distill`` distils.
+    dense: the :class:`~stereojax.dense_distill.DenseTargets` that ``cfg.dense`` distils.
     """
     from tqdm import tqdm
     from tensorboardX import SummaryWriter
@@ -315,6 +330,9 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     if (cfg.distill > 0) != (teacher is not None):
         raise ConfigError("a teacher network is needed exactly when distill > 0 "
                           f"(distill {cfg.distill}, teacher {'given' if teacher else 'none'})")
+    if (cfg.dense > 0) != (dense is not None):
+        raise ConfigError("dense distillation targets are needed exactly when dense > 0 "
+                          f"(dense {cfg.dense}, targets {'given' if dense is not None else 'none'})")
     mesh = make_mesh(devices)
     _check_batch(cfg, mesh)
     main_process = jax.process_index() == 0
@@ -354,12 +372,15 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     bar = tqdm(range(start, end), initial=start, total=cfg.steps, desc="train", unit="step",
                disable=not progress, dynamic_ncols=True)
     history, t0, last_val = [], time.perf_counter(), None
-    samples_per_step = (4 if cfg.distill else 3) * cfg.batch
-    teacher_args = () if teacher is None else (teacher.variables, teacher.net)
+    samples_per_step = (4 if cfg.distill else 3) * cfg.batch + (cfg.dense_batch if cfg.dense else 0)
+    teacher_args = {} if teacher is None else {"teacher": teacher.variables, "teacher_net": teacher.net}
     if teacher is not None and mesh is not None:
         from jax.sharding import NamedSharding, PartitionSpec
 
-        teacher_args = (jax.device_put(teacher.variables, NamedSharding(mesh, PartitionSpec())), teacher.net)
+        teacher_args = {"teacher": jax.device_put(teacher.variables, NamedSharding(mesh, PartitionSpec())),
+                        "teacher_net": teacher.net}
+    if dense is not None:
+        teacher_args["dense"] = dense
     last_good = start
     latest = {"state": state}        # the last completed step's state, kept if a signal stops the loop
     try:
@@ -396,7 +417,7 @@ def _steps(bar, latest, data, val, val_samples, cfg, mesh, teacher_args, writer,
     """The steps of :func:`fit`; ``latest["state"]`` always holds the last completed step's state."""
     state = latest["state"]
     for step in bar:
-        new_state, m = train_step(state, data, cfg, mesh, *teacher_args)
+        new_state, m = train_step(state, data, cfg, mesh, **teacher_args)
         loss = float(m["loss"])
         if not math.isfinite(loss):
             writer.close()

@@ -174,6 +174,19 @@ def test_compressed_quick(dirs):
     assert "speed against accuracy" in (dirs["out"] / "compressed_quick.md").read_text()
 
 
+def test_dense_distill_quick(dirs):
+    run("dense_distill.py", dirs)
+    data, md = load(dirs, "dense_distill")
+    assert data["targets"]["pixels"] > 0 and data["targets"]["band_k"] >= 3
+    for r in data["rows"]:
+        assert in_range(r["select"]) and in_range(r["val"]) and r["seconds"] > 0 and r["gflop"] > 0
+    fast = [r for r in data["rows"] if r["seconds"] <= 6]
+    low = min(r["select"] for r in fast)
+    assert data["chosen"] == min([r for r in fast if r["select"] <= low + 0.05], key=lambda r: r["seconds"])["name"]
+    assert in_range(data["full"]["val"]) and in_range(data["census"]["val"]) and in_range(data["sgbm"]["val"])
+    assert (dirs["out"] / "dense_distill_quick.png").stat().st_size > 0 and "speed against accuracy" in md
+
+
 def test_confidence_quick(dirs):
     run("confidence.py", dirs)
     data = json.loads((dirs["out"] / "confidence_000021_quick.json").read_text())
