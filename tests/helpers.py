@@ -67,3 +67,15 @@ def fake_kitti(root, n=2, with_gt=True):
             gt = np.zeros(left.shape, np.uint16)
             gt[10:40, 20:70] = 3 * 256
             cv2.imwrite(str(root / "disp_noc_0" / f"{i:06d}_10.png"), gt)
+
+
+def run_cli(argv, capsys):
+    """``stereojax`` in-process: (exit code, stdout, stderr) of ``main(argv)``."""
+    from stereojax.cli import main
+
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:
+        code = exc.code
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err

@@ -7,20 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereojax.cli import main
 from stereojax.data import io
-from tests.helpers import shifted_pair as _shifted_pair
+from tests.helpers import shifted_pair as _shifted_pair, run_cli
 
 FAST = ["--max-disp", "16", "--method", "census"]
 
 
-def _run(argv, capsys):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
+_run = run_cli
 
 
 def _pair(folder: Path, name: str, d: int = 4, h=48, w=80, seed=0):

@@ -15,21 +15,14 @@ import numpy as np
 import pytest
 
 from stereojax.batch import range_warning
-from stereojax.cli import main
 from stereojax.data import io
-from tests.helpers import shifted_pair
+from tests.helpers import shifted_pair, run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 CENSUS = ["--method", "census", "--check-rectified", "off"]
 
 
-def _run(argv, capsys):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
+_run = run_cli
 
 
 def _pair(folder: Path, d: int, name="p", h=64, w=128, seed=0):

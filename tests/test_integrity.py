@@ -12,22 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereojax.cli import main
 from stereojax.data import io
 from stereojax.rectification import check_rectified
-from tests.helpers import fake_kitti, shifted_pair
+from tests.helpers import fake_kitti, shifted_pair, run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["--max-disp", "16", "--method", "census"]
 
 
-def _run(argv, capsys):
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
+_run = run_cli
 
 
 def _folders(root: Path, names, right_names=None, h=48, w=80):
