@@ -342,27 +342,51 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
             disp_range=disp_range, max_depth=max_depth), devices, overwrite, verify, unmatched, announced)
 
 
-def _remove_stale(out: Path) -> None:
+def _remove_stale(out: Path, every: bool = False) -> None:
     """Remove the staging folders (``.<frame>.partial-PID``, ``.<frame>.old-PID``) that a killed run
-    left; never one of a process that is still alive."""
+    left; never one of a process that is still alive (``every``: all of them, when the caller
+    knows that no process of its batch writes any more)."""
     from .outputs import pid_alive
 
     for stale in [*out.glob(f".*{_PARTIAL}*"), *out.glob(".*.old-*")]:
         pid = stale.name.rsplit("-", 1)[-1]
-        if pid.isdigit() and int(pid) != os.getpid() and pid_alive(int(pid)):
+        if not every and pid.isdigit() and int(pid) != os.getpid() and pid_alive(int(pid)):
             continue
         shutil.rmtree(stale, ignore_errors=True)
 
 
+def frame_work(pair, out: Path, resolve: Callable, opts: dict):
+    """One frame of a batch into ``out/<name>/`` (:func:`_predict_into_place`): (pair, what the
+    summary needs of it, None) or (pair, None, the error's one line). What it returns is small
+    and picklable, so that a Ray worker can run it (:mod:`stereojax.ray_batch`)."""
+    try:
+        r = _predict_into_place(pair, out, resolve, opts)
+    except (StereoError, OSError) as exc:
+        return pair, None, str(exc)
+    from .memory import current_rss_bytes
+
+    return pair, {"timings": r["timings"], "shape": list(np.shape(r["disparity"])), "run": r["run"],
+                  "warnings": r["warnings"], "rss_mb": current_rss_bytes() / 2 ** 20}, None
+
+
 def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devices, overwrite: bool,
-                          verify: bool, unmatched, announced) -> dict:
+                          verify: bool, unmatched, announced, mapper=None, workers: int | None = None,
+                          where: str | None = None) -> dict:
+    """The batch, with the output folder's lock held. ``mapper(todo)`` yields :func:`frame_work`'s
+    triples (default: the local devices, :func:`stereojax.devices.map_frames`); ``workers``: how
+    many frames run at once (for frames/s); ``where``: a line that says where they run."""
     from tqdm import tqdm
 
     from .devices import map_frames
     from .interrupt import Interrupted
-    from .memory import current_rss_bytes, peak_rss_bytes
+    from .memory import peak_rss_bytes
 
     devices = list(devices or [])
+    if mapper is None:
+        def mapper(items):
+            return map_frames(lambda pair: frame_work(pair, out, resolve, opts), items, devices)
+        workers = max(len(devices), 1)
+        where = f"{len(devices)} devices, one frame each at a time" if len(devices) > 1 else None
     _remove_stale(out)
     skipped, damaged = [], []
     for p in ([] if overwrite else pairs):
@@ -373,13 +397,6 @@ def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devic
             damaged.append({"frame": p[0], "problem": problem})
     done = set(skipped)
     todo = [p for p in pairs if p[0] not in done]
-
-    def work(pair):
-        try:
-            return pair, _predict_into_place(pair, out, resolve, opts), None
-        except (StereoError, OSError) as exc:
-            return pair, None, exc
-
     rows, failed, described, interrupted = [], [], {announced} - {None}, None
     t_start = time.perf_counter()
     with tqdm(total=len(pairs), initial=len(skipped), desc="predict", unit="frame", file=sys.stderr,
@@ -391,31 +408,30 @@ def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devic
         for d in damaged:
             tqdm.write(f"stereojax predict: {d['frame']}: recorded as complete but {d['problem']}; computing "
                        "it again", file=sys.stderr)
-        if len(devices) > 1:
-            tqdm.write(f"stereojax predict: {len(devices)} devices, one frame each at a time", file=sys.stderr)
+        if where:
+            tqdm.write(f"stereojax predict: {where}", file=sys.stderr)
         try:
             with stop_on_signals():
-                for (name, left_p, right_p), result, exc in map_frames(work, todo, devices):
+                for (name, left_p, right_p), result, error in mapper(todo):
                     bar.update(1)
-                    if exc is not None:
-                        failed.append({"frame": name, "left": str(left_p), "right": str(right_p),
-                                       "error": str(exc)})
-                        tqdm.write(f"stereojax predict: error: {name}: {exc}", file=sys.stderr)
+                    if error is not None:
+                        failed.append({"frame": name, "left": str(left_p), "right": str(right_p), "error": error})
+                        tqdm.write(f"stereojax predict: error: {name}: {error}", file=sys.stderr)
                         continue
-                    disp, timings, run = result["disparity"], result["timings"], result["run"]
+                    timings, run = result["timings"], result["run"]
                     if run.description not in described:
                         described.add(run.description)
                         tqdm.write(f"stereojax predict: {name}: method: {run.chosen_line}", file=sys.stderr)
                     rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
                                  "device": timings["device"], "bucket": timings["bucket"],
-                                 "width": int(disp.shape[1]), "height": int(disp.shape[0]),
-                                 "rss_mb": current_rss_bytes() / 2 ** 20, "warnings": result["warnings"]})
+                                 "width": int(result["shape"][1]), "height": int(result["shape"][0]),
+                                 "rss_mb": result["rss_mb"], "warnings": result["warnings"]})
                     bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
         except Interrupted as stop:
             interrupted = stop
     wall = time.perf_counter() - t_start
     compute = sum(r["seconds"] for r in rows)
-    n_dev = max(len(devices), 1)
+    n_dev = max(workers or 1, 1)
     summary = {"frames": len(pairs), "ok": len(rows) + len(skipped), "computed": len(rows),
                "skipped": len(skipped), "failed": failed,
                "not_done": len(pairs) - len(rows) - len(skipped) - len(failed),

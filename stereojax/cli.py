@@ -108,6 +108,10 @@ def cmd_predict(args) -> int:
     from .progress import Phases
 
     pairs, batch = find_pairs(args.inputs, args.pairs)
+    if args.ray and batch:       # before JAX starts its threads: a local cluster forks its processes
+        from .ray_batch import connect
+
+        connect(args.ray)
     devices = local_devices(args.devices)          # a bad --devices is refused for one pair too
     calib, calib_line = _calibration(args, show=False)
     if args.ply and calib is None:
@@ -131,14 +135,23 @@ def cmd_predict(args) -> int:
     for line in (_max_disp_note(args), calib_line):
         if line:
             print(f"stereojax: {line}", flush=True)
+    if not batch and args.ray:
+        raise ConfigError("--ray runs a batch: give two folders, a KITTI training/ or testing/ folder, a folder of "
+                          "Middlebury scenes or a pair list (one pair runs here without --ray)")
     if not batch:
         print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
         return 0
     unmatched = getattr(pairs, "unmatched", [])
     if unmatched:
         print(f"stereojax predict: {unmatched_line(unmatched)}", file=sys.stderr)
-    s = predict_batch(pairs, out, resolve, devices=devices, overwrite=args.overwrite, verify=args.verify,
-                      unmatched=unmatched, announced=announced, **opts)
+    if args.ray:
+        from .ray_batch import predict_batch_ray
+
+        s = predict_batch_ray(pairs, out, resolve, args.ray, workers=args.ray_workers, overwrite=args.overwrite,
+                              verify=args.verify, unmatched=unmatched, announced=announced, **opts)
+    else:
+        s = predict_batch(pairs, out, resolve, devices=devices, overwrite=args.overwrite, verify=args.verify,
+                          unmatched=unmatched, announced=announced, **opts)
     print(summary_line(s, out))
     return 2 if s["failed"] else 0
 
@@ -285,6 +298,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "frames already complete in --out with the same method, model, settings and inputs are kept)")
     sp.add_argument("--verify", action="store_true", help="a batch reads the SHA-256 of every kept frame's files "
                     "again (default: their sizes are checked); a frame that fails is computed again")
+    sp.add_argument("--ray", metavar="ADDRESS", help="compute the batch on a Ray cluster: HOST:PORT, ray://HOST:PORT, "
+                    "or auto (RAY_ADDRESS, else a new local cluster); same outputs and resume as a local batch "
+                    "(needs pip install \"stereojax[ray]\"; OUT must be a folder every node sees)")
+    sp.add_argument("--ray-workers", type=int, metavar="N", help="with --ray: this many workers (default: one per "
+                    "GPU, else one per 2 CPUs of the cluster)")
     add_devices(sp)
     add_method(sp)
     sp.set_defaults(func=cmd_predict)

@@ -43,6 +43,12 @@ class OutputBusyError(OutputError):
     exit_code = 8
 
 
+class ClusterError(StereoError):
+    """A Ray cluster (``predict --ray``) cannot be reached or used; nothing was computed."""
+
+    exit_code = 9
+
+
 class MemoryBudgetError(StereoError, MemoryError):
     """The chain's cost volumes would not fit in the memory limit; refused before allocating.
 
