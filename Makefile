@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate results-evaluate bench train train-middlebury \
-        search-chain dense-distill band-search middlebury-folds augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain dense-distill dense-distill-final band-search middlebury-folds augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -70,6 +70,9 @@ bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI
 
 dense-distill: $(STAMP)  ## issue 26: students distilled from the full KITTI model's band costs (targets cached in runs/dense_targets, ~45 min) -> experiments/results/dense_distill.{json,md,png}
 	$(EXP)/dense_distill.py --data $(DATA)
+
+dense-distill-final: $(STAMP)  ## issue 26's last step: the chosen student on all 20 frames + unlabeled pairs, 90 000 steps (~40 min), scored on 000021-000030 -> experiments/results/dense_distill_final.*
+	$(EXP)/dense_distill.py --data $(DATA) --final
 
 band-search: $(STAMP)  ## band settings (width, coarse scale, widening) on KITTI 2015 000001-000019 (odd): coverage, > 3 px and time beside the full range (~10 min) -> experiments/results/band_search_census.*
 	$(PY) experiments/band_search.py --data $(DATA) --method census
