@@ -32,6 +32,17 @@ from .errors import ClusterError
 #: how often Ray restarts a dead worker, and retries the frame it held
 MAX_RESTARTS = 4
 MAX_TASK_RETRIES = 4
+#: how long the workers may take to be placed and to start (importing JAX, loading the model)
+PLACE_TIMEOUT_S = 300
+
+
+def worker_resources(workers: int, gpus: int, cpus: int, cpus_per_worker: int = 2) -> dict:
+    """What each of ``workers`` actors asks for, so that all of them fit the cluster at once: one
+    GPU each when the cluster has GPUs (a share of one when there are more workers than GPUs),
+    else ``cpus_per_worker`` CPUs, or the cluster's CPUs shared out when that is more than it has."""
+    if gpus:
+        return {"num_gpus": min(1.0, gpus / workers)}
+    return {"num_cpus": min(float(cpus_per_worker), cpus / workers)}
 
 
 def _import_ray():
@@ -120,19 +131,26 @@ def predict_batch_ray(pairs, out: Path, resolve: Callable, address: str = "auto"
         workers = gpus if gpus else max(1, cpus // cpus_per_worker)
     if workers < 1:
         raise ClusterError(f"--ray-workers must be at least 1, got {workers}")
-    each = {"num_gpus": 1} if gpus else {"num_cpus": min(cpus_per_worker, cpus)}
+    each = worker_resources(workers, gpus, cpus, cpus_per_worker)
     opts = dict(calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile,
                 disp_range=disp_range, max_depth=max_depth)
     worker = _worker_class(ray)
     with folder_lock(out, "predict"):
         actors = [worker.options(**each).remote(str(out), resolve, opts) for _ in range(workers)]
+        try:                  # every worker placed and started, or a clear line (never a silent wait)
+            ray.get([a.pid.remote() for a in actors], timeout=PLACE_TIMEOUT_S)
+        except ray.exceptions.GetTimeoutError:
+            for a in actors:
+                ray.kill(a)
+            raise ClusterError(f"the Ray cluster did not start {workers} worker(s) with {each} each within "
+                               f"{PLACE_TIMEOUT_S} s (it has {cpus} CPUs, {gpus} GPUs); use fewer --ray-workers") from None
         pool = ray.util.ActorPool(actors)
 
         def mapper(items):
             return pool.map_unordered(lambda actor, pair: actor.predict.remote(pair), items)
 
-        where = (f"Ray cluster {ray.get_runtime_context().gcs_address}: {workers} worker(s), "
-                 + (f"1 GPU each ({gpus} GPUs)" if gpus else f"{each['num_cpus']} CPUs each ({cpus} CPUs)"))
+        share = f"{each['num_gpus']:g} GPU each ({gpus} GPUs)" if gpus else f"{each['num_cpus']:g} CPUs each ({cpus} CPUs)"
+        where = f"Ray cluster {ray.get_runtime_context().gcs_address}: {workers} worker(s), {share}"
         try:
             summary = _predict_batch_locked(pairs, out, resolve, opts, None, overwrite, verify, unmatched, announced,
                                             mapper=mapper, workers=workers, where=where)

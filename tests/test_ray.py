@@ -151,6 +151,26 @@ def test_a_killed_driver_resumes(cluster, tmp_path):
     assert len(_same_outputs(tmp_path / "local", out)) == 8
 
 
+def test_worker_resources_always_fit_the_cluster():
+    from stereojax.ray_batch import worker_resources
+
+    assert worker_resources(1, 0, 2) == {"num_cpus": 2.0}
+    assert worker_resources(2, 0, 2) == {"num_cpus": 1.0}             # 2 x 2 CPUs would never be placed
+    assert worker_resources(3, 0, 16) == {"num_cpus": 2.0}
+    assert worker_resources(4, 2, 16) == {"num_gpus": 0.5}
+    assert worker_resources(2, 8, 16) == {"num_gpus": 1.0}
+
+
+def test_two_workers_on_two_cpus_share_the_frames(cluster, tmp_path):
+    left, right = _inputs(tmp_path, 4)
+    env = _env(tmp_path)
+    r = subprocess.run(_cmd(left, right, tmp_path / "ray", "--ray", cluster, "--ray-workers", "2"), env=env,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "ray" / "summary.json").read_text())
+    assert summary["ok"] == 4 and summary["workers"] == 2 and "2 worker(s), 1 CPUs each" in summary["ray"]
+
+
 def test_an_address_where_nothing_listens_is_one_line(tmp_path):
     left, right = _inputs(tmp_path, 2)
     t0 = time.time()
