@@ -337,12 +337,12 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     from .outputs import folder_lock, output_folder
 
     with folder_lock(output_folder(out), "predict"):
-        return _predict_batch_locked(pairs, out, resolve, dict(
+        return predict_batch_locked(pairs, out, resolve, dict(
             calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile,
             disp_range=disp_range, max_depth=max_depth), devices, overwrite, verify, unmatched, announced)
 
 
-def _remove_stale(out: Path, every: bool = False) -> None:
+def remove_stale(out: Path, every: bool = False) -> None:
     """Remove the staging folders (``.<frame>.partial-PID``, ``.<frame>.old-PID``) that a killed run
     left; never one of a process that is still alive (``every``: all of them, when the caller
     knows that no process of its batch writes any more)."""
@@ -369,7 +369,7 @@ def frame_work(pair, out: Path, resolve: Callable, opts: dict):
                   "warnings": r["warnings"], "rss_mb": current_rss_bytes() / 2 ** 20}, None
 
 
-def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devices, overwrite: bool,
+def predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devices, overwrite: bool,
                           verify: bool, unmatched, announced, mapper=None, workers: int | None = None,
                           where: str | None = None) -> dict:
     """The batch, with the output folder's lock held. ``mapper(todo)`` yields :func:`frame_work`'s
@@ -387,7 +387,7 @@ def _predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devic
             return map_frames(lambda pair: frame_work(pair, out, resolve, opts), items, devices)
         workers = max(len(devices), 1)
         where = f"{len(devices)} devices, one frame each at a time" if len(devices) > 1 else None
-    _remove_stale(out)
+    remove_stale(out)
     skipped, damaged = [], []
     for p in ([] if overwrite else pairs):
         ok, problem = _reusable(p, out, resolve, opts, verify)

@@ -4,7 +4,7 @@ actually uses, instead of at a few patches near the true match.
 
 Targets (:func:`teacher_targets`): on a frame, the band chain's coarse pass gives every pixel
 its band of K disparities (:func:`stereojax.chain.bands`); at a sample of pixels, the teacher's
-similarity is computed at all K (``s = 1 - cost``, :func:`stereojax.learned_cost._head_at_pixels`).
+similarity is computed at all K (``s = 1 - cost``, :func:`stereojax.learned_cost.head_at_pixels`).
 Pixels are drawn with more weight at depth edges (a step of the coarse band offsets) and on weak
 texture (low local contrast), where students and teacher disagree most. No ground truth is
 needed, so the unlabeled pairs serve as well as the labelled frames.
@@ -94,10 +94,10 @@ def _band_offsets(left, right, config):
 
 @functools.partial(jax.jit, static_argnames=("net",))
 def _similarities(net, variables, left, right, ys, xs, cand):
-    from .learned_cost import _head_at_pixels, tower_features
+    from .learned_cost import head_at_pixels, tower_features
 
     fl, fr = tower_features(net, variables, left, right)
-    return 1.0 - _head_at_pixels(MatchNet(net), variables, fl, fr, ys, xs, cand)
+    return 1.0 - head_at_pixels(MatchNet(net), variables, fl, fr, ys, xs, cand)
 
 
 def teacher_targets(teacher, config, left, right, n_pixels: int, seed: int = 0) -> dict:

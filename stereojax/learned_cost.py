@@ -122,7 +122,7 @@ def head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, row
     return jax.lax.map(row, (fl, fr, cand), batch_size=rows_per_batch)
 
 
-def _head_at_pixels(model, variables, fl, fr, ys, xs, cand, chunk: int = 2048) -> jax.Array:
+def head_at_pixels(model, variables, fl, fr, ys, xs, cand, chunk: int = 2048) -> jax.Array:
     """``f32[M, K]``: head cost at pixels (ys, xs) ``i32[M]`` and disparities ``cand`` ``i32[M, K]``
     (features ``f32[H, W, F]`` gathered, then projected: no whole-image projections)."""
     m, k = cand.shape
@@ -234,7 +234,7 @@ def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, conf
     if valid is not None:   # the share is of the real pixels
         m_real = jnp.floor(c.unsure_share * valid[0] * valid[1]).astype(jnp.int32)
         idx = jnp.where((jnp.arange(m) < m_real)[:, None], idx, size)
-    more_cost = _head_at_pixels(model, variables, fl, fr, ys, xs, jnp.minimum(more, d - 1))
+    more_cost = head_at_pixels(model, variables, fl, fr, ys, xs, jnp.minimum(more, d - 1))
     return vol.at[ys[:, None], xs[:, None], idx].set(more_cost, mode="drop")
 
 

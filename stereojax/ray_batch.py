@@ -119,7 +119,7 @@ def predict_batch_ray(pairs, out: Path, resolve: Callable, address: str = "auto"
     address: ``auto``, ``HOST:PORT`` or ``ray://HOST:PORT``. workers: how many actors (default:
     one per GPU when the cluster has GPUs, else one per ``cpus_per_worker`` CPUs). Returns the
     summary (``summary.json``), which also holds ``workers`` and ``ray`` (where they ran)."""
-    from .batch import _predict_batch_locked, _remove_stale
+    from .batch import predict_batch_locked, remove_stale
     from .data.io import write_json
     from .outputs import folder_lock, output_folder
 
@@ -152,12 +152,12 @@ def predict_batch_ray(pairs, out: Path, resolve: Callable, address: str = "auto"
         share = f"{each['num_gpus']:g} GPU each ({gpus} GPUs)" if gpus else f"{each['num_cpus']:g} CPUs each ({cpus} CPUs)"
         where = f"Ray cluster {ray.get_runtime_context().gcs_address}: {workers} worker(s), {share}"
         try:
-            summary = _predict_batch_locked(pairs, out, resolve, opts, None, overwrite, verify, unmatched, announced,
+            summary = predict_batch_locked(pairs, out, resolve, opts, None, overwrite, verify, unmatched, announced,
                                             mapper=mapper, workers=workers, where=where)
         finally:
             for a in actors:
                 ray.kill(a)
-            _remove_stale(out, every=True)       # the staging folder of a worker that died mid-frame
+            remove_stale(out, every=True)       # the staging folder of a worker that died mid-frame
         summary.update(workers=workers, ray=where)
         write_json(out / "summary.json", summary)
     return summary

@@ -8,6 +8,23 @@ import pytest
 DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _own_compile_cache(tmp_path_factory):
+    """The suite's own persistent compile cache (STEREOJAX_CACHE_DIR, inherited by the CLI
+    subprocesses): the tests never read or write the user's cache, nor one that another process
+    (a training, a Ray worker) writes at the same time."""
+    import os
+
+    if "STEREOJAX_CACHE_DIR" in os.environ:       # set by the caller: keep it
+        yield
+        return
+    os.environ["STEREOJAX_CACHE_DIR"] = str(tmp_path_factory.mktemp("compile-cache"))
+    try:
+        yield
+    finally:
+        os.environ.pop("STEREOJAX_CACHE_DIR", None)
+
+
 @pytest.fixture
 def data_root() -> Path:
     """The shared real-data folder; tests that use it are skipped when it is absent."""

@@ -160,7 +160,7 @@ def test_a_second_batch_on_a_held_folder_is_refused(tmp_path):
 
 
 def test_stale_staging_of_a_live_process_is_kept(tmp_path):
-    from stereojax.batch import _remove_stale
+    from stereojax.batch import remove_stale
 
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
@@ -169,7 +169,7 @@ def test_stale_staging_of_a_live_process_is_kept(tmp_path):
         (tmp_path / f".a.partial-{live.pid}").mkdir()
         (tmp_path / f".b.partial-{dead.pid}").mkdir()
         (tmp_path / f".c.old-{dead.pid}").mkdir()
-        _remove_stale(tmp_path)
+        remove_stale(tmp_path)
         assert sorted(p.name for p in tmp_path.iterdir()) == [f".a.partial-{live.pid}"]
     finally:
         live.kill()

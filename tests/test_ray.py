@@ -151,6 +151,19 @@ def test_a_killed_driver_resumes(cluster, tmp_path):
     assert len(_same_outputs(tmp_path / "local", out)) == 8
 
 
+def test_a_bad_pair_is_one_line_and_the_rest_completes(cluster, tmp_path):
+    left, right = _inputs(tmp_path, 3)
+    (right / "f01.png").write_bytes(b"not a png")
+    r = subprocess.run(_cmd(left, right, tmp_path / "ray", "--ray", cluster), env=_env(tmp_path),
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2, r.stderr
+    errors = [ln for ln in r.stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and errors[0].startswith("stereojax predict: error: f01: cannot read image"), errors
+    summary = json.loads((tmp_path / "ray" / "summary.json").read_text())
+    assert summary["ok"] == 2 and [f["frame"] for f in summary["failed"]] == ["f01"]
+    assert not (tmp_path / "ray" / "f01").exists() and (tmp_path / "ray" / "f02" / "frame.json").is_file()
+
+
 def test_worker_resources_always_fit_the_cluster():
     from stereojax.ray_batch import worker_resources
 
