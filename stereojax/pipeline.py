@@ -500,7 +500,7 @@ class Predictor:
         from .progress import Phases
 
         phases = phases or Phases(quiet=True)
-        device = self.device if self.device is not None else jax.devices()[0]
+        device = self.device
         rows = self.band_rows(left)
         if rows is not None:
             from .tiling import SEAM_OVERLAP, bands
