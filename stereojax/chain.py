@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from . import aggregation, coarse, cost as cost_mod, refine
 from .compile_cache import real_pixels
 from .sgm import sgm, sgm_volume
-from .volume import CostVolume
+from .volume import OUT_OF_BAND, CostVolume
 
 
 # ---- front: bands and the classical matching cost -------------------------------------------
@@ -31,6 +31,19 @@ def bands(left: jax.Array, right: jax.Array, config, valid=None):
     if not config.banded:
         return None, None
     return coarse.bands(left, right, config, valid)
+
+
+def limit_bands(offsets, limits, config):
+    """Band offsets moved inside per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX in
+    the chain's disparities; None: unchanged): each band starts at or after MIN and, where the
+    limits are at least K wide, ends at or before MAX - 1, so that it holds as much of the
+    allowed range as it can."""
+    if offsets is None or limits is None:
+        return offsets
+    k = config.band.width
+    lo, hi = limits[0], limits[1]
+    off = jnp.clip(offsets, lo, jnp.maximum(lo, hi - k))
+    return jnp.clip(off, 0, config.max_disp - k)
 
 
 def classic_volume(left: jax.Array, right: jax.Array, config, offsets, valid=None) -> CostVolume:
@@ -70,6 +83,20 @@ def _sgm(st, config):
 
 def _cbca_after(st, config):
     return _cbca(st, config, config.cbca.iterations_after, "cost_final")
+
+
+def _limits(st, config):
+    """Per-pixel disparity limits (``st["limits"]`` ``i32[2, H, W]``, MIN <= d < MAX; absent:
+    none): every entry outside them costs :data:`~stereojax.volume.OUT_OF_BAND`, so WTA, the
+    right view, the confidence and the sub-pixel fit choose inside them."""
+    limits = st.get("limits")
+    if limits is None:
+        return st
+    vol = st["vol"]
+    d = vol.disparities() if vol.banded else jnp.arange(vol.k, dtype=jnp.int32)[None, None, :]
+    inside = (d >= limits[0][..., None]) & (d < limits[1][..., None])
+    st["vol"] = vol.with_cost(jnp.where(inside, vol.cost, OUT_OF_BAND))
+    return st
 
 
 def _wta(st, config):
@@ -143,6 +170,10 @@ def _bilateral(st, config):
     disp = refine.bilateral_filter(st["disp"], st["left"], r.bilateral_radius, r.bilateral_sigma_space,
                                    r.bilateral_sigma_range)
     st["disparity"] = jnp.clip(disp, 0.0, float(config.max_disp - 1))
+    limits = st.get("limits")
+    if limits is not None:          # the filling and the filters never leave a pixel's limits
+        st["disparity"] = jnp.clip(st["disparity"], limits[0].astype(jnp.float32),
+                                   (limits[1] - 1).astype(jnp.float32))
     return st
 
 
@@ -153,6 +184,7 @@ STAGES: list[tuple[str, Callable]] = [
     ("CBCA before SGM", _cbca_before),
     ("SGM", _sgm),
     ("CBCA after SGM", _cbca_after),
+    ("per-pixel limits", _limits),
     ("WTA", _wta),
     ("right view + WTA", _right_view),
     ("left-right check + filling", _lr_fill),
@@ -167,17 +199,19 @@ KEPT = ("cost", "cost_cbca", "cost_sgm", "cost_final", "disp_wta", "disp_right",
         "disp_filled", "disp_subpixel", "disp_median", "confidence", "disparity")
 
 
-def initial_state(vol: CostVolume, right_offset, left, right) -> dict:
+def initial_state(vol: CostVolume, right_offset, left, right, limits=None) -> dict:
     if right_offset is None:
         right_offset = jnp.zeros(vol.shape, jnp.int32)
-    return {"vol": vol, "cost": vol, "right_offset": right_offset, "left": left, "right": right}
+    return {"vol": vol, "cost": vol, "right_offset": right_offset, "left": left, "right": right,
+            "limits": limits}
 
 
-def run(vol: CostVolume, right_offset, left, right, config, keep: bool = False) -> dict:
+def run(vol: CostVolume, right_offset, left, right, config, keep: bool = False, limits=None) -> dict:
     """Every stage of :data:`STAGES` on the left-view volume; returns ``disparity``,
     ``confidence`` and ``disp_wta`` (``keep``: every entry of :data:`KEPT`, volumes as
-    CostVolumes)."""
-    st = initial_state(vol, right_offset, left, right)
+    CostVolumes). ``limits``: per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX, in
+    the chain's disparities), or None."""
+    st = initial_state(vol, right_offset, left, right, limits)
     for _, stage in STAGES:
         st = stage(st, config)
     names = KEPT if keep else ("disp_wta", "confidence", "disparity")

@@ -57,6 +57,32 @@ def check_disp_range(disp_range, width: int | None = None) -> tuple[int, int] | 
     return lo, hi
 
 
+def check_pixel_range(pixel_range, shape: tuple[int, int], lo: int, hi: int) -> np.ndarray:
+    """``i32[2, H, W]``: per-pixel limits (MIN, MAX maps, MIN <= d < MAX) checked and intersected
+    with the range ``lo <= d < hi``; a one-line :class:`StereoInputError` for maps that are not
+    two ``shape`` arrays of integers, or that leave a pixel no disparity."""
+    try:
+        mn, mx = pixel_range
+        maps = np.stack([np.asarray(mn), np.asarray(mx)])
+    except (TypeError, ValueError):
+        raise StereoInputError("pixel_range must be two [H, W] maps (MIN, MAX) of the image's size "
+                               f"{shape[0]}x{shape[1]}") from None
+    if maps.shape != (2,) + tuple(shape):
+        got = "x".join(str(n) for n in maps.shape[1:]) if maps.ndim == 3 else f"shape {maps.shape[1:]}"
+        raise StereoInputError(f"pixel_range maps are {got}, the image is {shape[0]}x{shape[1]}")
+    if maps.dtype.kind not in "iu":
+        if maps.dtype.kind != "f" or not np.all(np.isfinite(maps)) or np.any(maps != np.round(maps)):
+            raise StereoInputError("pixel_range maps must hold integers (disparities MIN <= d < MAX)")
+    maps = np.clip(maps.astype(np.int64), lo, hi).astype(np.int32)
+    empty = maps[0] >= maps[1]
+    if empty.any():
+        y, x = (int(v[0]) for v in np.nonzero(empty))
+        raise StereoInputError(f"pixel_range leaves {int(empty.sum())} pixels no disparity (e.g. at row {y}, "
+                               f"column {x}: MIN {int(np.asarray(mn)[y, x])}, MAX {int(np.asarray(mx)[y, x])}, "
+                               f"within the range {lo}..{hi}); each needs MIN < MAX inside it")
+    return maps
+
+
 def shift_right_image(grey: np.ndarray, lo: int) -> np.ndarray:
     """The right image moved by ``lo`` columns, edges repeated: out[:, u] = grey[:, u - lo], so that
     disparity d of the original pair is disparity d - lo of (left, out)."""
@@ -123,10 +149,11 @@ def _left_volume(left, right, config: StereoConfig, variables, net, valid=None, 
 
 
 def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, variables=None, net=None,
-           keep: bool = True, valid=None) -> dict[str, jax.Array]:
+           keep: bool = True, valid=None, limits=None) -> dict[str, jax.Array]:
     off_l, off_r = chain_mod.bands(left, right, config, valid)
+    off_l = chain_mod.limit_bands(off_l, limits, config)
     vol = _left_volume(left, right, config, variables, net, valid, off_l)
-    return chain_mod.run(vol, off_r, left, right, config, keep)
+    return chain_mod.run(vol, off_r, left, right, config, keep, limits)
 
 
 def chain_from_volume(vol, left: jax.Array, right: jax.Array, config: StereoConfig,
@@ -156,14 +183,15 @@ def _result(out: dict, confidence: bool):
 
 @functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
 def disparity_padded(left: jax.Array, right: jax.Array, valid: jax.Array, config: StereoConfig,
-                     variables=None, net=None, confidence: bool = False) -> jax.Array:
+                     variables=None, net=None, confidence: bool = False, limits=None) -> jax.Array:
     """:func:`disparity_grey` on a pair padded (right and bottom) to its size bucket.
 
     valid: ``i32[2]``, the real (rows, columns); it is an argument, not a static value, so every
     frame of one bucket runs the same compiled program. Crop the result to ``[:rows, :cols]``.
     confidence: also return the confidence map (:func:`stereojax.refine.confidence`).
+    limits: per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX, chain disparities) or None.
     """
-    return _result(_chain(left, right, config, variables, net, keep=False, valid=valid), confidence)
+    return _result(_chain(left, right, config, variables, net, keep=False, valid=valid, limits=limits), confidence)
 
 
 def _split_learned(config: StereoConfig, net) -> bool:
@@ -176,25 +204,27 @@ def _split_learned(config: StereoConfig, net) -> bool:
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
-def learned_front(left, right, valid, config: StereoConfig, variables=None, net=None):
+def learned_front(left, right, valid, config: StereoConfig, variables=None, net=None, limits=None):
     """First program of the pruned learned chain: tower features of both views, the bands of
-    both views (None: full range) and the ranked census candidates ``i32[H, W, K2]``."""
+    both views (None: full range; the left ones inside ``limits``) and the ranked census
+    candidates ``i32[H, W, K2]``."""
     from .learned_cost import ranked_candidates, tower_features
 
     fl, fr = tower_features(net, variables, left, right, valid)
-    bands = chain_mod.bands(left, right, config, valid)
+    off_l, off_r = chain_mod.bands(left, right, config, valid)
+    bands = (chain_mod.limit_bands(off_l, limits, config), off_r)
     return fl, fr, ranked_candidates(left, right, config, bands[0], valid), bands
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
 def learned_back(left, right, valid, fl, fr, ranked, bands, config: StereoConfig, variables=None, net=None,
-                 confidence: bool = False):
+                 confidence: bool = False, limits=None):
     """Second program of the pruned learned chain: the head at the candidates, then CBCA, SGM
     and refinement; the disparity ``f32[H, W]``."""
     from .learned_cost import band_volume
 
     vol = band_volume(net, variables, fl, fr, ranked, config, bands[0], valid)
-    return _result(chain_mod.run(vol, bands[1], left, right, config), confidence)
+    return _result(chain_mod.run(vol, bands[1], left, right, config, limits=limits), confidence)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
@@ -251,11 +281,12 @@ class CompiledChain:
     """
 
     def __init__(self, shape: tuple[int, int], config: StereoConfig, net=None, variables=None, device=None,
-                 confidence: bool = False):
+                 confidence: bool = False, limited: bool = False):
         """variables: the variables (or arrays of their shapes) the chain will be called with.
-        confidence: the chain returns (disparity, confidence)."""
+        confidence: the chain returns (disparity, confidence). limited: every call gives
+        per-pixel disparity limits (:meth:`Predictor.__call__`'s ``pixel_range``)."""
         self.shape, self.config, self.net, self.device = shape, config, net, device
-        self.confidence = confidence
+        self.confidence, self.limited = confidence, limited
         sharding = None
         if device is not None:
             from jax.sharding import SingleDeviceSharding
@@ -265,32 +296,44 @@ class CompiledChain:
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), variables)
         spec = jax.ShapeDtypeStruct(shape, jnp.float32, sharding=sharding)
         valid = jax.ShapeDtypeStruct((2,), jnp.int32, sharding=sharding)
+        lim = jax.ShapeDtypeStruct((2,) + tuple(shape), jnp.int32, sharding=sharding) if limited else None
         self._split = _split_learned(config, net)
         if self._split:
-            self._front = learned_front.lower(spec, spec, valid, config, var_spec, net).compile()
-            fl, fr, ranked, bands = jax.eval_shape(lambda a, b, v, w: learned_front(a, b, v, config, w, net),
-                                                   spec, spec, valid, var_spec)
+            self._front = learned_front.lower(spec, spec, valid, config, var_spec, net, lim).compile()
+            fl, fr, ranked, bands = jax.eval_shape(lambda a, b, v, w, m: learned_front(a, b, v, config, w, net, m),
+                                                   spec, spec, valid, var_spec, lim)
             if sharding is not None:
                 fl, fr, ranked, bands = jax.tree_util.tree_map(
                     lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), (fl, fr, ranked, bands))
             self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, bands, config, var_spec, net,
-                                            confidence).compile()
+                                            confidence, lim).compile()
         else:
-            self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net, confidence).compile()
+            self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net, confidence,
+                                                    lim).compile()
 
-    def __call__(self, left: np.ndarray, right: np.ndarray, variables=None) -> np.ndarray:
+    def __call__(self, left: np.ndarray, right: np.ndarray, variables=None, limits=None) -> np.ndarray:
         """Disparity ``f32[H, W]`` of a grey pair in the bucket; variables: the network's, on
-        this chain's device (:class:`Predictor` puts them there once)."""
+        this chain's device (:class:`Predictor` puts them there once); limits: ``i32[2, H, W]``
+        per-pixel disparity limits (MIN <= d < MAX, chain disparities), given exactly when the
+        chain was compiled ``limited``."""
         h, w = left.shape
         if h > self.shape[0] or w > self.shape[1]:
             raise ValueError(f"a {h}x{w} pair does not fit the {self.shape[0]}x{self.shape[1]} bucket")
+        if (limits is not None) != self.limited:
+            raise ValueError("per-pixel limits must be given exactly when the chain was compiled for them")
         lp, rp = pad_to(left, self.shape), pad_to(right, self.shape)
         lp, rp, valid = jax.device_put((lp, rp, np.array([h, w], np.int32)), self.device)
+        lim = None
+        if limits is not None:     # padding: the whole range
+            lim = np.empty((2,) + tuple(self.shape), np.int32)
+            lim[0], lim[1] = 0, self.config.max_disp
+            lim[:, :h, :w] = limits
+            lim = jax.device_put(lim, self.device)
         if self._split:
-            fl, fr, ranked, bands = self._front(lp, rp, valid, variables)
-            out = self._back(lp, rp, valid, fl, fr, ranked, bands, variables)
+            fl, fr, ranked, bands = self._front(lp, rp, valid, variables, lim)
+            out = self._back(lp, rp, valid, fl, fr, ranked, bands, variables, lim)
         else:
-            out = self._compiled(lp, rp, valid, variables)
+            out = self._compiled(lp, rp, valid, variables, lim)
         if self.confidence:
             return np.asarray(out[0])[:h, :w], np.asarray(out[1])[:h, :w]
         return np.asarray(out)[:h, :w]
@@ -322,7 +365,7 @@ def _variable_shapes(variables):
 
 
 def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, variables=None,
-                   device=None, confidence: bool = False) -> tuple[CompiledChain, bool]:
+                   device=None, confidence: bool = False, limited: bool = False) -> tuple[CompiledChain, bool]:
     """(the :class:`CompiledChain` of a bucket shape, config, architecture and device, whether it
     was compiled now); ``variables`` give the shapes only. Safe to call from the worker threads
     of :func:`stereojax.devices.map_frames`. Most callers want :class:`Predictor`.
@@ -330,14 +373,14 @@ def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, varia
     ``device`` None means the default device, named: a program compiled for it is the one a
     batch compiles for its first device, so both find one persistent-cache entry."""
     device = default_device(device)
-    key = (tuple(shape), config, net, device, _variable_shapes(variables), confidence)
+    key = (tuple(shape), config, net, device, _variable_shapes(variables), confidence, limited)
     with _COMPILED_LOCK:
         fresh = key not in _COMPILED
         if fresh:
             mine = [k for k in _COMPILED if k[3] == device]
             for old in mine[:max(0, len(mine) - _KEEP_PER_DEVICE + 1)]:
                 del _COMPILED[old]
-            _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device, confidence)
+            _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device, confidence, limited)
         else:   # the most recently used last
             _COMPILED[key] = _COMPILED.pop(key)
         return _COMPILED[key], fresh
@@ -400,32 +443,47 @@ class Predictor:
             return out[0] + np.float32(self.disp_range[0]), out[1]
         return out + np.float32(self.disp_range[0])
 
-    def _key(self, height: int, width: int):
+    def _key(self, height: int, width: int, limited: bool = False):
         from .compile_cache import bucket_shape
 
         return (bucket_shape(height, width), self.config, self.net, self.device, _variable_shapes(self.variables),
-                self.confidence)
+                self.confidence, bool(limited))
 
-    def is_compiled(self, height: int, width: int) -> bool:
+    def is_compiled(self, height: int, width: int, limited: bool = False) -> bool:
         """Whether the chain for a ``height x width`` pair is compiled in this process already."""
-        return self._key(height, width) in _COMPILED
+        return self._key(height, width, limited) in _COMPILED
 
-    def compiled(self, height: int, width: int) -> tuple[CompiledChain, bool]:
-        """(the compiled chain for a ``height x width`` pair, whether it was compiled now)."""
-        shape, config, net, device, _, confidence = self._key(height, width)
-        return compiled_chain(shape, config, net, self.variables, device, confidence)
+    def compiled(self, height: int, width: int, limited: bool = False) -> tuple[CompiledChain, bool]:
+        """(the compiled chain for a ``height x width`` pair, whether it was compiled now);
+        ``limited``: the chain that takes per-pixel limits."""
+        shape, config, net, device, _, confidence, limited = self._key(height, width, limited)
+        return compiled_chain(shape, config, net, self.variables, device, confidence, limited)
 
-    def run(self, gl: np.ndarray, gr: np.ndarray) -> np.ndarray:
-        """The chain on grey images already checked by :meth:`prepare`."""
-        chain, _ = self.compiled(*gl.shape)
-        return self._offset(chain(gl, gr, self.variables))
+    def limits(self, pixel_range, shape) -> np.ndarray | None:
+        """``i32[2, H, W]`` per-pixel limits in the chain's disparities from ``pixel_range`` (two
+        ``[H, W]`` maps MIN, MAX of the pair's disparities, MIN <= d < MAX; see :func:`check_pixel_range`),
+        intersected with this predictor's range; None when ``pixel_range`` is None."""
+        if pixel_range is None:
+            return None
+        lo = 0 if self.disp_range is None else self.disp_range[0]
+        return check_pixel_range(pixel_range, tuple(shape[:2]), lo, lo + self.config.max_disp) - np.int32(lo)
 
-    def __call__(self, left, right) -> np.ndarray:
-        """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair."""
+    def run(self, gl: np.ndarray, gr: np.ndarray, limits=None) -> np.ndarray:
+        """The chain on grey images already checked by :meth:`prepare`; ``limits`` from :meth:`limits`."""
+        chain, _ = self.compiled(*gl.shape, limited=limits is not None)
+        return self._offset(chain(gl, gr, self.variables, limits))
+
+    def __call__(self, left, right, pixel_range=None) -> np.ndarray:
+        """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
+
+        pixel_range: None, or two ``[H, W]`` integer maps (MIN, MAX): pixel (y, x) takes a
+        disparity MIN[y, x] <= d < MAX[y, x] (a prior from another sensor or an earlier frame),
+        intersected with the predictor's range; banded chains move each band inside it."""
+        limits = self.limits(pixel_range, np.shape(left))
         rows = self.band_rows(left)
         if rows is not None:
-            return self.in_bands(left, right, rows)
-        return self.run(*self.prepare(left, right))
+            return self.in_bands(left, right, rows, limits=limits)
+        return self.run(*self.prepare(left, right), limits)
 
     def band_rows(self, left) -> int | None:
         """With ``tile="auto"``, the rows per band when the whole frame would not fit the memory
@@ -440,14 +498,15 @@ class Predictor:
             return None
         return tiling.band_rows(h, w, self.config, self.memory_limit_gb)
 
-    def in_bands(self, left, right, rows: int, overlap: int | None = None, on_band=None):
-        """The pair in horizontal bands of ``rows`` rows, stitched (:func:`stereojax.tiling.run_in_bands`)."""
+    def in_bands(self, left, right, rows: int, overlap: int | None = None, on_band=None, limits=None):
+        """The pair in horizontal bands of ``rows`` rows, stitched (:func:`stereojax.tiling.run_in_bands`);
+        ``limits`` (from :meth:`limits`) cut into the same bands."""
         from . import tiling
 
-        return tiling.run_in_bands(lambda a, b: self.run(*self.prepare(a, b)), left, right, rows,
-                                   tiling.SEAM_OVERLAP if overlap is None else overlap, on_band)
+        return tiling.run_in_bands(lambda a, b, m=None: self.run(*self.prepare(a, b), m), left, right, rows,
+                                   tiling.SEAM_OVERLAP if overlap is None else overlap, on_band, limits)
 
-    def _in_bands_shown(self, left, right, rows: int, n: int, phases):
+    def _in_bands_shown(self, left, right, rows: int, n: int, phases, limits=None):
         """:meth:`in_bands` with a progress bar over the bands (the time left) unless ``phases``
         is quiet; (disparity, seconds)."""
         import sys
@@ -458,11 +517,11 @@ class Predictor:
         h, w = np.shape(left)[:2]
         t0 = time.perf_counter()
         if phases.quiet:
-            return self.in_bands(left, right, rows), time.perf_counter() - t0
+            return self.in_bands(left, right, rows, limits=limits), time.perf_counter() - t0
         print(f"stereojax: computing the disparity of {w}x{h} in {n} bands of {rows} rows (the whole frame would "
               "not fit the memory limit; --tile off refuses it)", flush=True)
         with tqdm(total=n, desc="bands", unit="band", file=sys.stderr, dynamic_ncols=True) as bar:
-            out = self.in_bands(left, right, rows, on_band=lambda: bar.update(1))
+            out = self.in_bands(left, right, rows, on_band=lambda: bar.update(1), limits=limits)
         return out, time.perf_counter() - t0
 
     def volume(self, left, right) -> Volume:
@@ -491,36 +550,38 @@ class Predictor:
             return self._offset((np.asarray(out[0])[:h, :w], np.asarray(out[1])[:h, :w]))
         return self._offset(np.asarray(out)[:h, :w])
 
-    def timed(self, left, right, phases=None) -> tuple[np.ndarray, dict]:
+    def timed(self, left, right, phases=None, pixel_range=None) -> tuple[np.ndarray, dict]:
         """(disparity, timings) of a pair, compilation timed apart: ``timings`` has ``seconds``
         (the run), ``compile_s`` (0 when this process had compiled the chain already), the
         ``bucket`` [H, W] and the ``device``. ``phases``: a :class:`stereojax.progress.Phases`
-        that shows each step (default: silent)."""
+        that shows each step (default: silent). ``pixel_range``: as in :meth:`__call__`."""
         from .compile_cache import bucket_shape
         from .progress import Phases
 
         phases = phases or Phases(quiet=True)
         device = self.device
+        limits = self.limits(pixel_range, np.shape(left))
         rows = self.band_rows(left)
         if rows is not None:
             from .tiling import SEAM_OVERLAP, bands
 
             h, w = np.shape(left)[:2]
             n = len(bands(h, rows, SEAM_OVERLAP))
-            out, secs = self._in_bands_shown(left, right, rows, n, phases)
+            out, secs = self._in_bands_shown(left, right, rows, n, phases, limits)
             shape = bucket_shape(rows, w)
             return out, {"seconds": secs, "compile_s": 0.0, "bucket": [int(shape[0]), int(shape[1])],
                          "device": str(device), "bands": n, "band_rows": rows}
         gl, gr = self.prepare(left, right)
         shape = bucket_shape(*gl.shape)
         compile_s = 0.0
-        if not self.is_compiled(*gl.shape):
+        limited = limits is not None
+        if not self.is_compiled(*gl.shape, limited=limited):
             phases.start(f"compiling the {self.config.cost.method} chain for {shape[1]}x{shape[0]} "
                          f"(size bucket of {gl.shape[1]}x{gl.shape[0]}), {self.config.max_disp} disparities")
-            self.compiled(*gl.shape)
+            self.compiled(*gl.shape, limited=limited)
             compile_s = phases.done()
         phases.start(f"computing the disparity of {gl.shape[1]}x{gl.shape[0]}")
-        disp = self.run(gl, gr)
+        disp = self.run(gl, gr, limits)
         secs = phases.done()
         return disp, {"seconds": secs, "compile_s": compile_s, "bucket": [int(shape[0]), int(shape[1])],
                       "device": str(device)}
@@ -553,7 +614,7 @@ def _model_args(config: StereoConfig, params):
 
 def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None,
               memory_limit_gb=None, bucket: bool = True, confidence: bool = False,
-              disp_range=None) -> np.ndarray:
+              disp_range=None, pixel_range=None) -> np.ndarray:
     """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
 
     left, right: ``[H, W]`` or ``[H, W, 3]`` arrays (uint8, uint16 or float). config: a
@@ -567,13 +628,15 @@ def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=
     compiles for the exact size. confidence: return (disparity, confidence ``f32[H, W]`` in
     [0, 1]), see :class:`Predictor`. disp_range: ``(MIN, MAX)``, the disparities MIN <= d < MAX
     to search instead of ``0 .. config.max_disp - 1`` (MIN may be negative: converging
-    cameras, Middlebury's offsets). Raises :class:`StereoInputError` / :class:`ConfigError` on
-    bad input and :class:`MemoryBudgetError` before allocating a chain that would not fit.
+    cameras, Middlebury's offsets). pixel_range: two ``[H, W]`` integer maps (MIN, MAX), each
+    pixel's own limits MIN <= d < MAX, intersected with the range (:meth:`Predictor.__call__`).
+    Raises :class:`StereoInputError` / :class:`ConfigError` on bad input and
+    :class:`MemoryBudgetError` before allocating a chain that would not fit.
     """
     config = config or preset("census")
-    if bucket or confidence or disp_range is not None:
+    if bucket or confidence or disp_range is not None or pixel_range is not None:
         return Predictor(config, params, memory_limit_gb=memory_limit_gb, confidence=confidence,
-                         disp_range=disp_range)(left, right)
+                         disp_range=disp_range)(left, right, pixel_range=pixel_range)
     variables, net = _model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb)
     ensure_enabled()

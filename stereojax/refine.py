@@ -9,6 +9,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from .volume import OUT_OF_BAND
+
 # labels of the left-right check
 CORRECT, MISMATCH, OCCLUSION = 0, 1, 2
 
@@ -159,8 +161,9 @@ def fill_disparity(disp: jax.Array, labels: jax.Array) -> jax.Array:
 def subpixel(cost: jax.Array, disp: jax.Array) -> jax.Array:
     """Parabola fit through the costs at d - 1, d, d + 1 around integer ``disp``; ``f32[H, W]``.
 
-    d_sub = d - (C+ - C-) / (2 (C+ - 2 C + C-)), applied where 0 < d < D - 1 and the parabola
-    opens upwards; the offset is clamped to [-0.5, 0.5].
+    d_sub = d - (C+ - C-) / (2 (C+ - 2 C + C-)), applied where 0 < d < D - 1, neither
+    neighbour lies outside the pixel's limits (:data:`~stereojax.volume.OUT_OF_BAND`) and the
+    parabola opens upwards; the offset is clamped to [-0.5, 0.5].
     """
     max_disp = cost.shape[-1]
     d = jnp.clip(jnp.round(disp).astype(jnp.int32), 0, max_disp - 1)
@@ -168,7 +171,7 @@ def subpixel(cost: jax.Array, disp: jax.Array) -> jax.Array:
     cm = jnp.take_along_axis(cost, jnp.clip(d - 1, 0, max_disp - 1)[..., None], axis=-1)[..., 0]
     cp = jnp.take_along_axis(cost, jnp.clip(d + 1, 0, max_disp - 1)[..., None], axis=-1)[..., 0]
     denom = cp - 2.0 * c0 + cm
-    ok = (d > 0) & (d < max_disp - 1) & (denom > 1e-12)
+    ok = (d > 0) & (d < max_disp - 1) & (denom > 1e-12) & (jnp.maximum(cm, cp) < 0.5 * OUT_OF_BAND)
     offset = jnp.clip((cp - cm) / (2.0 * jnp.where(ok, denom, 1.0)), -0.5, 0.5)
     return d.astype(jnp.float32) - jnp.where(ok, offset, 0.0)
 
@@ -236,8 +239,6 @@ def right_wta(vol, right_offset, invalid: float = 1.0) -> jax.Array:
     (full range: :func:`right_cost_from_left`). Entries with x + d beyond the real width get
     ``invalid``, as in the full range; entries where d lies outside the left pixel's band get
     :data:`~stereojax.volume.OUT_OF_BAND`."""
-    from .volume import OUT_OF_BAND
-
     vw = None if vol.valid is None else vol.valid[1]
     if not vol.banded:
         return wta(right_cost_from_left(vol.cost, invalid, vw))
@@ -268,7 +269,7 @@ def subpixel_volume(vol, disp: jax.Array) -> jax.Array:
     take = lambda i: jnp.take_along_axis(vol.cost, jnp.clip(i, 0, k - 1)[..., None], axis=-1)[..., 0]
     c0, cm, cp = take(j), take(j - 1), take(j + 1)
     denom = cp - 2.0 * c0 + cm
-    ok = (j > 0) & (j < k - 1) & (denom > 1e-12)
+    ok = (j > 0) & (j < k - 1) & (denom > 1e-12) & (jnp.maximum(cm, cp) < 0.5 * OUT_OF_BAND)
     offset = jnp.clip((cp - cm) / (2.0 * jnp.where(ok, denom, 1.0)), -0.5, 0.5)
     return d.astype(jnp.float32) - jnp.where(ok, offset, 0.0)
 

@@ -72,15 +72,19 @@ def bands(height: int, rows: int, overlap: int = SEAM_OVERLAP) -> list[tuple[int
     return out
 
 
-def run_in_bands(predict, left, right, rows: int, overlap: int = SEAM_OVERLAP, on_band=None):
+def run_in_bands(predict, left, right, rows: int, overlap: int = SEAM_OVERLAP, on_band=None, limits=None):
     """``predict(left_band, right_band)`` on every band and the results stitched: a disparity
     ``f32[H, W]``, or a tuple of such maps when ``predict`` returns one (e.g. with confidence).
-    ``on_band()`` is called after each band (a progress bar's update)."""
+    ``on_band()`` is called after each band (a progress bar's update). ``limits``: per-pixel
+    limits ``[2, H, W]``, cut into the same bands and passed as ``predict``'s third argument."""
     la, ra = np.asarray(left), np.asarray(right)
     height = la.shape[0]
     stitched = None
     for start, stop, k0, k1 in bands(height, rows, overlap):
-        out = predict(la[start:stop], ra[start:stop])
+        if limits is None:
+            out = predict(la[start:stop], ra[start:stop])
+        else:
+            out = predict(la[start:stop], ra[start:stop], limits[:, start:stop])
         parts = out if isinstance(out, tuple) else (out,)
         if stitched is None:
             stitched = [np.empty((height,) + p.shape[1:], p.dtype) for p in parts]
