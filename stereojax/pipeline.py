@@ -139,20 +139,9 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=No
     return gl, gr
 
 
-def _left_volume(left, right, config: StereoConfig, variables, net, valid=None, offset=None):
-    """The left-view :class:`~stereojax.volume.CostVolume` in the bands ``offset`` (None: full)."""
-    if config.cost.method == "learned":
-        from .learned_cost import learned_volume
-
-        return learned_volume(net, variables, left, right, config, valid, offset)
-    return chain_mod.classic_volume(left, right, config, offset, valid)
-
-
 def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, variables=None, net=None,
            keep: bool = True, valid=None, limits=None) -> dict[str, jax.Array]:
-    off_l, off_r = chain_mod.bands(left, right, config, valid)
-    off_l = chain_mod.limit_bands(off_l, limits, config)
-    vol = _left_volume(left, right, config, variables, net, valid, off_l)
+    vol, off_r = chain_mod.front(left, right, config, variables, net, valid, limits)
     return chain_mod.run(vol, off_r, left, right, config, keep, limits)
 
 
@@ -176,11 +165,6 @@ def disparity_grey(left: jax.Array, right: jax.Array, config: StereoConfig, vari
     return _chain(left, right, config, variables, net, keep=False)["disparity"]
 
 
-def _result(out: dict, confidence: bool):
-    """The disparity, or (disparity, confidence) when asked for."""
-    return (out["disparity"], out["confidence"]) if confidence else out["disparity"]
-
-
 @functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
 def disparity_padded(left: jax.Array, right: jax.Array, valid: jax.Array, config: StereoConfig,
                      variables=None, net=None, confidence: bool = False, limits=None) -> jax.Array:
@@ -191,53 +175,18 @@ def disparity_padded(left: jax.Array, right: jax.Array, valid: jax.Array, config
     confidence: also return the confidence map (:func:`stereojax.refine.confidence`).
     limits: per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX, chain disparities) or None.
     """
-    return _result(_chain(left, right, config, variables, net, keep=False, valid=valid, limits=limits), confidence)
-
-
-def _split_learned(config: StereoConfig, net) -> bool:
-    """The pruned learned chain runs as two programs: (features, ranked candidates), then
-    (head, CBCA, SGM, refinement). The candidate chain's volumes are gone before the learned
-    volume exists, so the peak memory is that of the larger half (measured on a KITTI frame:
-    3.2 GiB peak RSS instead of 4.3 as one program, and 20.3 s instead of 22.0 s)."""
-    return config.cost.method == "learned" and config.cost.candidates > 0 and net is not None \
-        and net.head != "cosine"
-
-
-@functools.partial(jax.jit, static_argnames=("config", "net"))
-def learned_front(left, right, valid, config: StereoConfig, variables=None, net=None, limits=None):
-    """First program of the pruned learned chain: tower features of both views, the bands of
-    both views (None: full range; the left ones inside ``limits``) and the ranked census
-    candidates ``i32[H, W, K2]``."""
-    from .learned_cost import ranked_candidates, tower_features
-
-    fl, fr = tower_features(net, variables, left, right, valid)
-    off_l, off_r = chain_mod.bands(left, right, config, valid)
-    bands = (chain_mod.limit_bands(off_l, limits, config), off_r)
-    return fl, fr, ranked_candidates(left, right, config, bands[0], valid), bands
-
-
-@functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
-def learned_back(left, right, valid, fl, fr, ranked, bands, config: StereoConfig, variables=None, net=None,
-                 confidence: bool = False, limits=None):
-    """Second program of the pruned learned chain: the head at the candidates, then CBCA, SGM
-    and refinement; the disparity ``f32[H, W]``."""
-    from .learned_cost import band_volume
-
-    vol = band_volume(net, variables, fl, fr, ranked, config, bands[0], valid)
-    return _result(chain_mod.run(vol, bands[1], left, right, config, limits=limits), confidence)
+    return chain_mod.result(_chain(left, right, config, variables, net, keep=False, valid=valid, limits=limits), confidence)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
 def _volume_padded(left, right, valid, config: StereoConfig, variables=None, net=None):
-    """(the left-view CostVolume, the right view's band offsets or None) of a padded pair (the
-    pruned learned cost in two programs, as the chain runs it)."""
-    if not _split_learned(config, net):
-        off_l, off_r = chain_mod.bands(left, right, config, valid)
-        return _left_volume(left, right, config, variables, net, valid, off_l), off_r
-    from .learned_cost import band_volume
-
-    fl, fr, ranked, bands = learned_front(left, right, valid, config, variables, net)
-    return band_volume(net, variables, fl, fr, ranked, config, bands[0], valid), bands[1]
+    """(the left-view CostVolume, the right view's band offsets or None) of a padded pair, made
+    as the chain makes it (in two programs where the method runs as two:
+    :func:`stereojax.chain.two_programs`)."""
+    if not chain_mod.two_programs(config, net):
+        return chain_mod.front(left, right, config, variables, net, valid)
+    carry = chain_mod.first_program(left, right, valid, config, variables, net)
+    return chain_mod.carry_volume(carry, config, variables, net, valid)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "confidence"))
@@ -245,7 +194,7 @@ def disparity_from_volume(vol, right_offset, left, right, config: StereoConfig, 
     """Everything after the matching cost (:func:`chain_from_volume`) on a padded pair's
     CostVolume; the disparity ``f32[H, W]`` of the bucket (crop it to ``vol.valid``), and its
     confidence when asked."""
-    return _result(chain_mod.run(vol, right_offset, left, right, config), confidence)
+    return chain_mod.result(chain_mod.run(vol, right_offset, left, right, config), confidence)
 
 
 @dataclass(frozen=True)
@@ -297,16 +246,16 @@ class CompiledChain:
         spec = jax.ShapeDtypeStruct(shape, jnp.float32, sharding=sharding)
         valid = jax.ShapeDtypeStruct((2,), jnp.int32, sharding=sharding)
         lim = jax.ShapeDtypeStruct((2,) + tuple(shape), jnp.int32, sharding=sharding) if limited else None
-        self._split = _split_learned(config, net)
-        if self._split:
-            self._front = learned_front.lower(spec, spec, valid, config, var_spec, net, lim).compile()
-            fl, fr, ranked, bands = jax.eval_shape(lambda a, b, v, w, m: learned_front(a, b, v, config, w, net, m),
-                                                   spec, spec, valid, var_spec, lim)
+        self._two = chain_mod.two_programs(config, net)
+        if self._two:          # the method's two programs, the second fed the first's outputs
+            self._first = chain_mod.first_program.lower(spec, spec, valid, config, var_spec, net, lim).compile()
+            carry = jax.eval_shape(lambda a, b, v, w, m: chain_mod.first_program(a, b, v, config, w, net, m),
+                                   spec, spec, valid, var_spec, lim)
             if sharding is not None:
-                fl, fr, ranked, bands = jax.tree_util.tree_map(
-                    lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), (fl, fr, ranked, bands))
-            self._back = learned_back.lower(spec, spec, valid, fl, fr, ranked, bands, config, var_spec, net,
-                                            confidence, lim).compile()
+                carry = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding),
+                                               carry)
+            self._second = chain_mod.second_program.lower(spec, spec, valid, carry, config, var_spec, net,
+                                                          confidence, lim).compile()
         else:
             self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net, confidence,
                                                     lim).compile()
@@ -329,9 +278,8 @@ class CompiledChain:
             lim[0], lim[1] = 0, self.config.max_disp
             lim[:, :h, :w] = limits
             lim = jax.device_put(lim, self.device)
-        if self._split:
-            fl, fr, ranked, bands = self._front(lp, rp, valid, variables, lim)
-            out = self._back(lp, rp, valid, fl, fr, ranked, bands, variables, lim)
+        if self._two:
+            out = self._second(lp, rp, valid, self._first(lp, rp, valid, variables, lim), variables, lim)
         else:
             out = self._compiled(lp, rp, valid, variables, lim)
         if self.confidence:
@@ -417,7 +365,7 @@ class Predictor:
         if tile not in ("off", "auto"):
             raise ConfigError(f"tile must be 'auto' or 'off', got {tile!r}")
         self.tile = tile
-        variables, self.net = _model_args(self.config, model)
+        variables, self.net = chain_mod.model_args(self.config, model)
         ensure_enabled()          # the persistent compile cache, as the CLI has it
         device = default_device(device)
         self.model, self.device, self.memory_limit_gb = model, device, memory_limit_gb
@@ -596,22 +544,6 @@ def _stages_grey(left, right, config, variables=None, net=None):
     return _as_arrays(_chain(left, right, config, variables, net, keep=True))
 
 
-def _model_args(config: StereoConfig, params):
-    """(variables, net) for the jitted chain, checking params against the cost method."""
-    if config.cost.method == "learned":
-        from .learned_cost import LearnedModel
-
-        if not isinstance(params, LearnedModel):
-            raise ConfigError("cost method 'learned' needs params=LearnedModel (e.g. "
-                              "stereojax.load_model('weights.msgpack')), got "
-                              f"{type(params).__name__}")
-        return params.variables, params.net
-    if params is not None:
-        raise ConfigError(f"cost method {config.cost.method!r} is classical and takes no network "
-                          "parameters; pass params=None")
-    return None, None
-
-
 def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None,
               memory_limit_gb=None, bucket: bool = True, confidence: bool = False,
               disp_range=None, pixel_range=None) -> np.ndarray:
@@ -637,7 +569,7 @@ def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=
     if bucket or confidence or disp_range is not None or pixel_range is not None:
         return Predictor(config, params, memory_limit_gb=memory_limit_gb, confidence=confidence,
                          disp_range=disp_range)(left, right, pixel_range=pixel_range)
-    variables, net = _model_args(config, params)
+    variables, net = chain_mod.model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb)
     ensure_enabled()
     return np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net))
@@ -653,7 +585,7 @@ def stages(left: Any, right: Any, config: StereoConfig | None = None, params=Non
     confidence, disparity. memory_limit_gb: as in :func:`disparity` (the estimate counts the kept volumes).
     """
     config = config or preset("census")
-    variables, net = _model_args(config, params)
+    variables, net = chain_mod.model_args(config, params)
     gl, gr = prepare_pair(left, right, config, memory_limit_gb, keep=True)
     out = _stages_grey(jnp.asarray(gl), jnp.asarray(gr), config, variables, net)
     return {k: np.asarray(v) for k, v in out.items()}

@@ -152,3 +152,26 @@ def test_bad_maps_are_refused_in_one_line(maps, msg):
     with pytest.raises(StereoInputError, match=msg) as exc:
         stereojax.disparity(left, right, stereojax.preset("census", 64), pixel_range=maps)
     assert "\n" not in str(exc.value)
+
+
+def test_the_learned_chain_keeps_a_real_frame_inside_its_limits(data_root):
+    """The compact model's two-program chain (bands, candidates, head) with limits from the
+    ground truth: inside them everywhere, and closer to the truth than without them."""
+    from stereojax import models
+    from stereojax.data.datasets import load_kitti2015
+
+    sample = load_kitti2015(data_root / "kitti2015" / "training", "000001")
+    left, right = sample.left[150:246, 400:656], sample.right[150:246, 400:656]
+    gt = sample.gt[150:246, 400:656]
+    known = sample.gt_valid[150:246, 400:656]
+    weights = models.shipped_weights("kitti2015_compact")
+    model = stereojax.load_model(weights)
+    cfg = models.learned_config(weights, 96)
+    assert cfg.banded and stereojax.chain.two_programs(cfg, model.net)
+    lo = np.where(known, np.floor(gt) - 3, 0).astype(np.int32)
+    hi = np.where(known, np.ceil(gt) + 4, 96).astype(np.int32)
+    free = stereojax.disparity(left, right, cfg, params=model)
+    disp = stereojax.disparity(left, right, cfg, params=model, pixel_range=(lo, hi))
+    assert np.all(disp >= lo) and np.all(disp <= hi - 1)
+    err = lambda d: (np.abs(d - gt)[known] > 3).mean()
+    assert err(disp) <= err(free) and err(disp) < 0.01
