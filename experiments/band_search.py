@@ -7,6 +7,11 @@ chain, all in one run. The rule that picks the setting is in experiments/PROTOCO
 
     python experiments/band_search.py --frames 000001-000019:2 --method census
     python experiments/band_search.py --method kitti2015_compact --bands 32/2/1/3/3
+    python experiments/band_search.py --method kitti2015_compact --bands 48/2/1/3/3 24/2/1/3/3@0
+
+A band written ``.../margin@N`` also sets the learned chain's ``cost.candidates`` to N (0: the
+head at every disparity of the band, without the census candidate chain); without ``@`` the
+card's own candidates are kept.
 """
 
 from __future__ import annotations
@@ -33,11 +38,20 @@ DEFAULT_BANDS = ("0", "24/2/1/3/3", "32/2/1/3/3", "32/2/2/4/4", "48/2/1/3/3", "3
 
 
 def parse_band(text: str) -> BandConfig:
-    parts = [int(p) for p in text.split("/")]
+    parts = [int(p) for p in text.partition("@")[0].split("/")]
     if parts == [0]:
         return BandConfig(width=0)
     width, scale, radius, unsure, margin = parts
     return BandConfig(width=width, scale=scale, radius=radius, unsure_radius=unsure, margin=margin)
+
+
+def with_band(base, text: str):
+    """The chain ``base`` with the band of ``text`` (and its ``@N`` candidates, if any)."""
+    cfg = dataclasses.replace(base, band=parse_band(text))
+    _, at, cands = text.partition("@")
+    if at:
+        cfg = dataclasses.replace(cfg, cost=dataclasses.replace(cfg.cost, candidates=int(cands)))
+    return cfg.validate()
 
 
 def frames_arg(text: str) -> list[str]:
@@ -62,6 +76,7 @@ def main(argv=None):
     ap.add_argument("--bands", nargs="+", default=list(DEFAULT_BANDS))
     ap.add_argument("--max-disp", type=int, default=228)
     ap.add_argument("--out", default=None)
+    ap.add_argument("--tag", default="", help="appended to the output name")
     args = ap.parse_args(argv)
     root = Path(args.data) / "kitti2015" / "training"
     frames = frames_arg(args.frames)
@@ -70,7 +85,7 @@ def main(argv=None):
     rows = []
     for text in args.bands:
         band = parse_band(text)
-        cfg = dataclasses.replace(base, band=band).validate()
+        cfg = with_band(base, text)
         predict = Predictor(cfg, model)
         bands_fn = jax.jit(lambda a, b, c=cfg: coarse.bands(a, b, c))
         cover, errs, secs = [], [], []
@@ -85,7 +100,8 @@ def main(argv=None):
                 off = np.asarray(bands_fn(jnp.asarray(gl), jnp.asarray(gr))[0])
                 inside = (s.gt >= off - 0.5) & (s.gt <= off + band.width - 0.5)
                 cover.append(float(inside[s.gt_valid].mean() * 100))
-        row = {"band": text, "width": band.width, "scale": band.scale, "radius": band.radius,
+        row = {"band": text, "candidates": cfg.cost.candidates if cfg.cost.method == "learned" else None,
+               "width": band.width, "scale": band.scale, "radius": band.radius,
                "unsure_radius": band.unsure_radius, "margin": band.margin,
                "coverage_pct": float(np.mean(cover)) if cover else 100.0,
                "coverage_min_pct": float(np.min(cover)) if cover else 100.0,
@@ -94,17 +110,21 @@ def main(argv=None):
         rows.append(row)
         print(f"{text:>12}  coverage {row['coverage_pct']:6.2f} % (min {row['coverage_min_pct']:6.2f})  "
               f"> 3 px {row['bad3_pct']:5.2f} %  {row['warm_s']:.2f} s", flush=True)
-    out = Path(args.out) if args.out else RESULTS / f"band_search_{args.method}"
+    out = Path(args.out) if args.out else RESULTS / f"band_search_{args.method}{args.tag}"
     out.with_suffix(".json").write_text(json.dumps(
         {"method": args.method, "frames": frames, "max_disp": args.max_disp, "rows": rows}, indent=2))
     lines = [f"# Band settings on KITTI 2015 training frames ({args.method})", "",
              f"Frames {', '.join(frames)} (training frames; experiments/PROTOCOL.md, 'Bands'), non-occluded GT, "
              f"{args.max_disp} disparities; band = width/scale/radius/unsure radius/margin (0 = full range); "
              "coverage = share of GT pixels whose true disparity lies in the pixel's band; "
+             "`@N`: the learned head at N census candidates per pixel (`@0`: at every disparity of the band); "
              "`python experiments/band_search.py` on this 2-core CPU, one run.", "",
-             "| band | coverage % | worst frame coverage % | > 3 px % | warm s / frame |", "|---|---|---|---|---|"]
+             "| band | head candidates / pixel | coverage % | worst frame coverage % | > 3 px % | warm s / frame |",
+             "|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['band']} | {r['coverage_pct']:.2f} | {r['coverage_min_pct']:.2f} | "
+        cands = "–" if r["candidates"] is None else (f"{r['candidates']} (census chain)" if r["candidates"]
+                                                     else f"{r['width']} (every band disparity)")
+        lines.append(f"| {r['band']} | {cands} | {r['coverage_pct']:.2f} | {r['coverage_min_pct']:.2f} | "
                      f"{r['bad3_pct']:.2f} | {r['warm_s']:.2f} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {out.with_suffix('.md')}")
