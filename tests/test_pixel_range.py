@@ -154,9 +154,11 @@ def test_bad_maps_are_refused_in_one_line(maps, msg):
     assert "\n" not in str(exc.value)
 
 
-def test_the_learned_chain_keeps_a_real_frame_inside_its_limits(data_root):
-    """The compact model's two-program chain (bands, candidates, head) with limits from the
-    ground truth: inside them everywhere, and closer to the truth than without them."""
+@pytest.mark.parametrize("name,dense", [("kitti2015", False), ("kitti2015_compact", True)])
+def test_the_learned_chains_keep_a_real_frame_inside_its_limits(data_root, name, dense):
+    """The learned chains (a card's two programs: bands, census candidates, head; and the head
+    at every disparity of a 24-wide band, one program) with limits from the ground truth: inside
+    them everywhere, and closer to the truth than without them."""
     from stereojax import models
     from stereojax.data.datasets import load_kitti2015
 
@@ -164,10 +166,13 @@ def test_the_learned_chain_keeps_a_real_frame_inside_its_limits(data_root):
     left, right = sample.left[150:246, 400:656], sample.right[150:246, 400:656]
     gt = sample.gt[150:246, 400:656]
     known = sample.gt_valid[150:246, 400:656]
-    weights = models.shipped_weights("kitti2015_compact")
+    weights = models.shipped_weights(name)
     model = stereojax.load_model(weights)
     cfg = models.learned_config(weights, 96)
-    assert cfg.banded and stereojax.chain.two_programs(cfg, model.net)
+    if dense:
+        cfg = dataclasses.replace(cfg, cost=dataclasses.replace(cfg.cost, candidates=0),
+                                  band=dataclasses.replace(cfg.band, width=24))
+    assert cfg.banded and stereojax.chain.two_programs(cfg, model.net) == (not dense)
     lo = np.where(known, np.floor(gt) - 3, 0).astype(np.int32)
     hi = np.where(known, np.ceil(gt) + 4, 96).astype(np.int32)
     free = stereojax.disparity(left, right, cfg, params=model)
