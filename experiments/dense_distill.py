@@ -34,10 +34,13 @@ from stereojax.models import learned_config, load_model, shipped_weights
 from stereojax.nets import NetConfig, network_flops
 from stereojax.train import fit, train_preset
 
-#: students: (name, tower maps, head widths, start from, learning rate)
+#: students: (name, tower maps, head widths, start from, learning rate[, tower layers (default 4)])
 STUDENTS = [
     ("f16_w64-32_dense", 16, (64, 32), "kitti2015_compact", 0.005),
     ("f32_w128-64_dense", 32, (128, 64), None, 0.02),
+    # second round (PROTOCOL, 'Dense distillation'): head widths and tower depth
+    ("f16_w32-16_dense", 16, (32, 16), None, 0.02),
+    ("f16_l3_w64-32_dense", 16, (64, 32), None, 0.02, 3),
 ]
 #: chain points of the curve: (label, student, head evaluations per pixel, band K)
 POINTS = [
@@ -45,6 +48,8 @@ POINTS = [
     ("f16_w64-32_dense, 8 evals", "f16_w64-32_dense", 8, 48),
     ("f16_w64-32_dense, 16 evals, K 32", "f16_w64-32_dense", 16, 32),
     ("f32_w128-64_dense, 16 evals", "f32_w128-64_dense", 16, 48),
+    ("f16_w32-16_dense, 16 evals", "f16_w32-16_dense", 16, 48),
+    ("f16_l3_w64-32_dense, 16 evals", "f16_l3_w64-32_dense", 16, 48),
     ("kitti2015_compact (shipped, patch distillation), 16 evals", "kitti2015_compact", 16, 48),
 ]
 STEPS = 10000
@@ -87,8 +92,8 @@ def chain(max_disp: int, evals: int, k: int):
                                band=dataclasses.replace(cfg.band, width=min(k, max_disp - 1))).validate()
 
 
-def train_student(setup, frames, dense, name, features, widths, init, lr) -> Path:
-    net = NetConfig(features=features, widths=tuple(widths)).validate()
+def train_student(setup, frames, dense, name, features, widths, init, lr, layers: int = 4) -> Path:
+    net = NetConfig(features=features, layers=layers, widths=tuple(widths)).validate()
     if setup.quick:
         cfg = train_preset("tiny", net=net, steps=setup.steps, val_every=setup.steps, checkpoint_every=setup.steps,
                            dense=1.0, dense_batch=8)
@@ -180,21 +185,24 @@ def main():
     sel, val = samples("select"), samples("val")
     bench = val[0]
     h, w = bench.left.shape[:2]
+    points = POINTS[:4:3] if setup.quick else POINTS                         # quick: two points
+    used = {p[1] for p in points}
     models = {"kitti2015_compact": load_model(shipped_weights("kitti2015_compact"))}
-    for name, features, widths, init, lr in STUDENTS:
+    for name, features, widths, init, lr, *layers in (st for st in STUDENTS if st[0] in used):
         if setup.quick:
             features, widths = 4, (8, 4)
-        models[name] = load_model(train_student(setup, frames, dense, name, features, widths, init, lr)
+        models[name] = load_model(train_student(setup, frames, dense, name, features, widths, init, lr, *layers)
                                   / "checkpoint.msgpack")
     rows = []
-    for label, name, evals, k in (POINTS[::3] if setup.quick else POINTS):   # quick: two points
+    for label, name, evals, k in points:
         if setup.quick:
             k = min(k, 16)
         model, cfg = models[name], chain(md, evals, k)
         predict = chain_method(cfg, model)
         secs = warm_chain(bench.left, bench.right, cfg, model, repeats=2)["warm_s"]
         r_sel, r_val = score(sel, predict, md), score(val, predict, md)
-        rows.append({"name": label, "student": name, "features": model.net.features, "widths": list(model.net.widths),
+        rows.append({"name": label, "student": name, "features": model.net.features, "layers": model.net.layers,
+                     "widths": list(model.net.widths),
                      "band_k": cfg.band.width, "evals_per_pixel": cfg.cost.candidates,
                      "gflop": network_flops(model.net, h, w, cfg.cost.candidates) / 1e9, "seconds": secs,
                      "select": r_sel["mean"]["bad3"], "val": r_val["mean"]["bad3"], "val_d1": r_val["mean"]["d1"],
@@ -225,7 +233,8 @@ def main():
             "rules": {"time_limit_s": TIME_LIMIT_S, "tie_points": TIE_POINTS, "best_limit": BEST_LIMIT},
             "targets": {"frames": len(files), "pixels": dense.size, "band_k": dense.width}, "frames": frames,
             "max_disp": md}
-    table = [[r["name"], f"tower {r['features']}, head {'-'.join(map(str, r['widths']))}", str(r["band_k"]),
+    table = [[r["name"], f"tower {r['features']}{'' if r.get('layers', 4) == 4 else ' x ' + str(r['layers']) + ' layers'}, "
+              f"head {'-'.join(map(str, r['widths']))}", str(r["band_k"]),
               str(r["evals_per_pixel"]), f"{r['gflop']:.3g}", f"{r['seconds']:.2f}", f"{r['select']:.2f}",
               f"{r['val']:.2f}"] for r in rows]
     table += [[full["name"], "tower 64, head 512-384-256-128", "48", f"{evals:g}", f"{full['gflop']:.3g}",

@@ -326,8 +326,15 @@ def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, varia
         fresh = key not in _COMPILED
         if fresh:
             mine = [k for k in _COMPILED if k[3] == device]
-            for old in mine[:max(0, len(mine) - _KEEP_PER_DEVICE + 1)]:
+            evict = mine[:max(0, len(mine) - _KEEP_PER_DEVICE + 1)]
+            for old in evict:
                 del _COMPILED[old]
+            if evict:
+                # JAX's own caches keep every executable alive, each with hundreds of memory maps
+                # of its machine code (about 480 for a census chain on CPU); a long batch of many
+                # sizes would reach the kernel's vm.max_map_count (65 530) and crash inside XLA.
+                # The chains still kept are referenced here and stay compiled.
+                jax.clear_caches()
             _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device, confidence, limited)
         else:   # the most recently used last
             _COMPILED[key] = _COMPILED.pop(key)

@@ -10,32 +10,37 @@ DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 @pytest.fixture(scope="session", autouse=True)
 def _own_compile_cache(tmp_path_factory):
-    """The suite's own persistent compile cache (STEREOJAX_CACHE_DIR), for the subprocesses
-    only: the tests never read or write the user's cache, nor one that another process (a
-    training, a Ray worker) writes at the same time.
-
-    The pytest process itself compiles without a persistent cache. It compiles hundreds of
-    programs over 15 minutes, and jaxlib 0.10.2 (CPU) twice segfaulted inside
-    ``executable.serialize()`` when writing a cache entry late in such a run (the same test,
-    test_train.py::test_fit_from_init..., passes alone and in its file); the cache itself is
-    tested in subprocesses, as users run it (tests/test_integrity.py, tests/test_speed.py)."""
+    """The suite's own persistent compile cache (STEREOJAX_CACHE_DIR, inherited by the CLI
+    subprocesses): the tests never read or write the user's cache, nor one that another process
+    (a training, a Ray worker) writes at the same time."""
     import os
 
-    from stereojax import compile_cache
-
-    compile_cache._enabled["tried"] = True           # ensure_enabled(): nothing in this process
-    enable = compile_cache.enable
-    compile_cache.enable = lambda path=None: None    # the CLI run in-process: no cache either
-    mine = "STEREOJAX_CACHE_DIR" not in os.environ   # set by the caller: keep it
-    if mine:
-        os.environ["STEREOJAX_CACHE_DIR"] = str(tmp_path_factory.mktemp("compile-cache"))
+    if "STEREOJAX_CACHE_DIR" in os.environ:       # set by the caller: keep it
+        yield
+        return
+    os.environ["STEREOJAX_CACHE_DIR"] = str(tmp_path_factory.mktemp("compile-cache"))
     try:
         yield
     finally:
-        compile_cache.enable = enable
-        compile_cache._enabled.pop("tried", None)
-        if mine:
-            os.environ.pop("STEREOJAX_CACHE_DIR", None)
+        os.environ.pop("STEREOJAX_CACHE_DIR", None)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _free_compiled_programs():
+    """After each test module, the programs it compiled are dropped. Every XLA:CPU executable
+    holds hundreds of memory maps of machine code (about 480 for a census chain), and JAX keeps
+    them all; one process running the whole suite reached the kernel's vm.max_map_count (65 530)
+    and segfaulted inside XLA, late in the run (twice, CI's run included)."""
+    yield
+    import gc
+
+    import jax
+
+    from stereojax import pipeline
+
+    pipeline._COMPILED.clear()
+    jax.clear_caches()
+    gc.collect()
 
 
 @pytest.fixture

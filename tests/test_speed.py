@@ -198,3 +198,31 @@ def test_a_second_model_of_the_same_shapes_never_runs_the_first_ones_weights():
         expect = stereojax.disparity(left, right, cfg, params=second, bucket=False)
         np.testing.assert_allclose(out_second, expect, atol=1e-4)   # ... the weights are not
         assert np.abs(out_second - out_first).max() > 0.5
+
+
+def test_a_batch_of_many_sizes_keeps_its_memory_maps_bounded(tmp_path):
+    """Frames of 12 size buckets in one process: the chains beyond the few kept are freed, with
+    their machine code's memory maps (each census chain holds hundreds; a long batch of mixed
+    sizes once grew without bound towards the kernel's vm.max_map_count and crashed in XLA).
+    In a subprocess of its own, with the compile cache off, so that nothing else counts."""
+    code = """
+import os, numpy as np, stereojax
+from stereojax import pipeline
+maps = lambda: sum(1 for _ in open(f"/proc/{os.getpid()}/maps"))
+rng = np.random.default_rng(0)
+seen = []
+for i in range(12):
+    left = rng.integers(0, 255, (48 + 16 * i, 96)).astype(np.uint8)
+    stereojax.disparity(left, np.roll(left, -3, axis=1), stereojax.preset("census", 16))
+    seen.append(maps())
+print(pipeline._KEEP_PER_DEVICE, len(pipeline._COMPILED), *seen)
+"""
+    env = {**os.environ, "STEREOJAX_CACHE_DIR": "off", "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=ROOT,
+                         check=True, timeout=600)
+    keep, kept, *seen = map(int, out.stdout.split())
+    assert kept == keep
+    per_chain = (seen[keep - 1] - seen[0]) / (keep - 1)         # what one more compiled chain adds
+    assert per_chain > 50                                        # the measure sees the chains at all
+    # after the first evictions the count stays near that of `keep` chains, not 12
+    assert max(seen[keep + 1:]) < seen[keep] + 2 * per_chain, seen
