@@ -84,7 +84,7 @@ def main():
     data = {"n_pairs": N, "cpu_flags": flags, "jax": jax.__version__, "layers": layers, "rows": rows}
     OUT.joinpath("bf16_head.json").write_text(json.dumps(data, indent=2) + "\n")
     lines = ["# A bfloat16 head on this CPU (issue 26)", "",
-             f"The shipped `kitti2015` head after its split first layer ({' → '.join(str(s[1]) for s in layers)}) "
+             f"The shipped `kitti2015` head after its split first layer ({' → '.join([str(layers[0][0])] + [str(s[1]) for s in layers])}) "
              f"on {N} (pixel, candidate) pairs, best of 5 warm runs, each code path in a fresh process; "
              f"jax {jax.__version__}, 2 CPU cores with {', '.join(flags) or 'no bf16 flags'}. "
              "`python experiments/investigations/bf16_head.py`.", "",
