@@ -261,17 +261,21 @@ def main():
     write_outputs(setup, "dense_distill", data, text)
 
 
+#: the students' colours: none of the anchors' (red, green, grey)
+STUDENT_COLOURS = ("tab:blue", "tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:cyan")
+
+
 def _plot(setup, rows, anchors) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    ax.scatter([r["seconds"] for r in rows], [r["val"] for r in rows], c="tab:blue", label="students (this run)")
-    for r in rows:
-        ax.annotate(r["name"].split(" (")[0], (r["seconds"], r["val"]), fontsize=6, xytext=(3, 3),
-                    textcoords="offset points")
+    fig, ax = plt.subplots(figsize=(7.2, 4.6))
+    markers = "ovD^<>phX*"
+    for i, r in enumerate(rows):          # one marker per point, named in the legend (labels would overlap)
+        ax.scatter([r["seconds"]], [r["val"]], marker=markers[i % len(markers)], c=STUDENT_COLOURS[i % 6],
+                   label=r["name"].replace(" (shipped, patch distillation)", " (shipped)"))
     for a, colour in zip(anchors, ("tab:red", "tab:green", "tab:gray")):
         ax.scatter([a["seconds"]], [a["val"]], c=colour, marker="s", label=a["name"])
     anchors_file = Path(setup.out) / "anchors.json"          # make bench-anchors: CNES Pandora, its own run
