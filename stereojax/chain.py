@@ -59,6 +59,12 @@ def classic_volume(left: jax.Array, right: jax.Array, config, offsets, valid=Non
     return cost_mod.band_cost(left, right, offsets, config.band.width, config.max_disp, config.cost, valid)
 
 
+def limited_bands(left, right, config, valid=None, limits=None):
+    """:func:`bands`, the left view's moved inside the per-pixel ``limits`` (:func:`limit_bands`)."""
+    off_l, off_r = bands(left, right, config, valid)
+    return limit_bands(off_l, limits, config), off_r
+
+
 def model_args(config, model):
     """(variables, net) for the jitted chain, checking ``model`` against the cost method: a
     :class:`~stereojax.learned_cost.LearnedModel` for the learned cost, None for the classical ones."""
@@ -90,8 +96,7 @@ def left_volume(left, right, config, variables, net, valid=None, offset=None) ->
 def front(left, right, config, variables=None, net=None, valid=None, limits=None):
     """(the left-view :class:`CostVolume`, the right view's band offsets or None): the coarse
     pass's bands, moved inside the per-pixel ``limits``, and the matching cost in them."""
-    off_l, off_r = bands(left, right, config, valid)
-    off_l = limit_bands(off_l, limits, config)
+    off_l, off_r = limited_bands(left, right, config, valid, limits)
     return left_volume(left, right, config, variables, net, valid, off_l), off_r
 
 
@@ -111,8 +116,7 @@ def first_program(left, right, valid, config, variables=None, net=None, limits=N
     from .learned_cost import ranked_candidates, tower_features
 
     fl, fr = tower_features(net, variables, left, right, valid)
-    off_l, off_r = bands(left, right, config, valid)
-    off_l = limit_bands(off_l, limits, config)
+    off_l, off_r = limited_bands(left, right, config, valid, limits)
     return fl, fr, ranked_candidates(left, right, config, off_l, valid), (off_l, off_r)
 
 
