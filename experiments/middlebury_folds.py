@@ -11,6 +11,13 @@ disparities, is left out of the search for time, not of the training); then scor
 held-out scenes with `--method best`'s pruned adaptive head and the searched settings. OpenCV
 StereoSGBM (left-padded) and the census chain are scored on the same scenes in the same run.
 Writes OUT/middlebury_folds_neutral.{md,json} (middlebury_folds.* with --border replicate). Running time here (2 cores): about 18 min per fold.
+
+--student (issue 26; experiments/PROTOCOL.md, "The Middlebury student of issue 26"): per fold the
+teacher is fine-tuned as above (its search and scoring are skipped), its band similarities are
+cached at STUDENT_PIXELS pixels of each banded training scene (runs/.../fold*_targets, resumable),
+and the shipped `kitti2015_compact` is fine-tuned on the GT patches plus those targets, its chain
+settings searched and its held-out scenes scored beside census and SGBM ->
+OUT/middlebury_folds_student.{md,json}.
 """
 
 import argparse
@@ -30,7 +37,9 @@ import stereojax  # noqa: E402
 from stereojax.data.datasets import search_range  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
 from stereojax.evaluation import chain_method, evaluate_frames, sgbm_method  # noqa: E402
-from stereojax.models import load_model, weights_path  # noqa: E402
+from stereojax.dense_distill import cache_targets, load_targets  # noqa: E402
+from stereojax.images import as_grey  # noqa: E402
+from stereojax.models import load_model, shipped_weights, weights_path  # noqa: E402
 from stereojax.train import fit, train_preset  # noqa: E402
 
 #: three folds, balanced by pixels; every scene is held out exactly once
@@ -39,6 +48,11 @@ FOLDS = [["Aloe_opencv", "Venus_2001"],
          ["Motorcycle_MiddEval3Q", "Teddy_2003Q"]]
 NO_SEARCH = {"Aloe_opencv"}
 KEYS = ("bad2", "bad3", "bad4", "epe")
+#: the student of --student: the shipped compact KITTI model, fine-tuned per fold
+STUDENT_INIT = "kitti2015_compact"
+STUDENT_PIXELS = 20000
+#: the fold record of the full network (middlebury_folds_neutral.md): the student's bar
+STUDENT_BAR = 4.58
 
 
 def main():
@@ -55,6 +69,8 @@ def main():
     ap.add_argument("--out", default=str(ROOT / "experiments" / "results"))
     ap.add_argument("--runs", default=str(ROOT / "runs" / "middlebury_folds"))
     ap.add_argument("--quick", action="store_true", help="tiny smoke test: 2 small scenes, 2 steps, 1 setting")
+    ap.add_argument("--student", action="store_true",
+                    help="issue 26: score a compact student distilled from each fold's teacher (see above)")
     ap.add_argument("--border", default="neutral", choices=["replicate", "neutral"],
                     help="cost.border of the learned chain (the out-of-view strip, neutral as in the shipped cards; "
                          "replicate is written as middlebury_folds.*, the earlier record)")
@@ -81,17 +97,21 @@ def main():
                       "init": args.init})
         model = load_model(run / "checkpoint.msgpack")
         train_s = time.perf_counter() - t0
+        if args.student:
+            model, base_i, train_s, dense_info = fold_student(args, i, run, model, base, train_names, load)
+        else:
+            base_i, dense_info = base, {}
         search_names = [n for n in train_names if n not in NO_SEARCH]
-        cache = cache_volumes([load(n) for n in search_names], model, base,
+        cache = cache_volumes([load(n) for n in search_names], model, base_i,
                               lambda s: search_range("middlebury", s, None))
-        best, best_err, start_err, log = coordinate_search(cache, base, space, args.rounds, "bad2+bad3")
+        best, best_err, start_err, log = coordinate_search(cache, base_i, space, args.rounds, "bad2+bad3")
         del cache
         fold_info.append({"fold": i, "held_out": held, "train": train_names, "searched_on": search_names,
-                          "search_start": start_err, "search_best": best_err, "changes": changes(base, best),
-                          "train_seconds": train_s, "config": best.to_dict(), "trials": log})
-        print(f"fold {i}: settings {changes(base, best) or 'preset'} ({start_err:.2f} -> {best_err:.2f} "
+                          "search_start": start_err, "search_best": best_err, "changes": changes(base_i, best),
+                          "train_seconds": train_s, "config": best.to_dict(), "trials": log, **dense_info})
+        print(f"fold {i}: settings {changes(base_i, best) or 'preset'} ({start_err:.2f} -> {best_err:.2f} "
               "mean of > 2 / > 3 px on its training scenes)", flush=True)
-        methods = {"learned": chain_method(best, model), "learned_preset": chain_method(base, model),
+        methods = {"learned": chain_method(best, model), "learned_preset": chain_method(base_i, model),
                    "census": chain_method(stereojax.preset("census")), "sgbm": sgbm_method(pad=True)}
         result = evaluate_frames([load(name) for name in held], methods, lambda s: search_range("middlebury", s, None))
         for r in result["frames"]:
@@ -100,31 +120,91 @@ def main():
             print(f"  {row['scene']}: learned {row['learned']['bad2']:.2f} / {row['learned']['bad3']:.2f}, "
                   f"SGBM {row['sgbm']['bad2']:.2f} / {row['sgbm']['bad3']:.2f} (> 2 / > 3 px %)", flush=True)
 
-    methods = [("learned", "fine-tuned model + fold's searched settings"),
-               ("learned_preset", "fine-tuned model, KITTI preset settings"),
+    who = "student" if args.student else "model"
+    methods = [("learned", f"fine-tuned {who} + fold's searched settings"),
+               ("learned_preset", f"fine-tuned {who}, preset settings"),
                ("census", "census chain"), ("sgbm", "OpenCV SGBM, left-padded")]
     mean = {m: {k: float(np.mean([r[m][k] for r in rows])) for k in KEYS} for m, _ in methods}
+
+    def mean_s(m):
+        return float(np.mean([r[m]["seconds"] for r in rows]))
     table = [[r["scene"], r["fold"], r["max_disp"]] + [f"{r[m]['bad2']:.2f} / {r[m]['bad3']:.2f}" for m, _ in methods]
              for r in rows]
     table.append(["**mean**", "", ""] + [f"**{mean[m]['bad2']:.2f} / {mean[m]['bad3']:.2f}**" for m, _ in methods])
-    md = ("# Middlebury dev scenes with folds (> 2 px / > 3 px %, all-pixel GT)\n\n"
-          f"Each scene scored by a model fine-tuned from the KITTI model `{args.init}` ({cfg.steps} steps, "
-          f"lr {args.lr}) on the other folds' scenes, with chain settings searched on those scenes; "
-          f"out-of-view strip of the learned chain: `cost.border {args.border}`.\n\n"
+    title = "# Middlebury dev scenes with folds (> 2 px / > 3 px %, all-pixel GT)\n\n"
+    if args.student:
+        title = ("# Middlebury with folds: the compact student of issue 26 (> 2 px / > 3 px %, all-pixel GT)\n\n"
+                 f"Each scene scored by `{STUDENT_INIT}` fine-tuned on the other folds' scenes (GT patches, "
+                 f"{cfg.steps} steps, lr {args.lr}) with dense distillation from that fold's teacher (`{args.init}` "
+                 f"fine-tuned the same way; band similarities at {200 if args.quick else STUDENT_PIXELS} pixels of each banded training "
+                 "scene), 16 head evaluations per pixel, its chain settings searched on the training scenes. "
+                 f"Mean warm seconds per scene: student {mean_s('learned'):.2f} s, census {mean_s('census'):.2f} s, "
+                 f"SGBM {mean_s('sgbm'):.3f} s (2 CPU cores, this run). Rule (PROTOCOL.md): the student becomes "
+                 f"`best` for Middlebury if its mean > 3 px is at most {STUDENT_BAR:.2f} % (the full network's fold "
+                 f"record): **{mean['learned']['bad3']:.2f} % -> "
+                 f"{'it does' if mean['learned']['bad3'] <= STUDENT_BAR else 'it does not'}**.\n\n")
+    if not args.student:
+        title += (f"Each scene scored by a model fine-tuned from the KITTI model `{args.init}` ({cfg.steps} steps, "
+                  f"lr {args.lr}) on the other folds' scenes, with chain settings searched on those scenes; "
+                  f"out-of-view strip of the learned chain: `cost.border {args.border}`.\n\n")
+    md = (title
           + md_table(["scene", "fold", "disparities"] + [label for _, label in methods], table) + "\n\n"
           + "\n".join(f"* fold {f['fold']} (held out {', '.join(f['held_out'])}): settings "
                       f"{f['changes'] or 'the preset'} (searched on {', '.join(f['searched_on'])}: "
                       f"{f['search_start']:.2f} -> {f['search_best']:.2f})" for f in fold_info) + "\n")
-    if args.quick:
+    if args.student:
+        stem = "middlebury_folds_student" + ("_quick" if args.quick else "")
+    elif args.quick:
         stem = "middlebury_folds_quick"
     else:   # replicate: the name of the earlier record
         stem = "middlebury_folds" + ("" if args.border == "replicate" else f"_{args.border}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / f"{stem}.json", {"steps": cfg.steps, "lr": args.lr, "seed": args.seed, "folds": fold_info,
-                                      "scenes": rows, "mean": mean})
+                                      "scenes": rows, "mean": mean, "student": args.student,
+                                      **({"student_bar": STUDENT_BAR,
+                                          "becomes_best": mean["learned"]["bad3"] <= STUDENT_BAR,
+                                          "seconds": {m: mean_s(m) for m, _ in methods}} if args.student else {})})
     (out / f"{stem}.md").write_text(md + f"\nCommand: `python experiments/middlebury_folds.py {' '.join(sys.argv[1:])}`\n")
     print(md)
+
+
+def fold_student(args, i, teacher_run, teacher, base, train_names, load):
+    """--student: the fold teacher's band targets on the training scenes, then the shipped compact
+    model fine-tuned on their GT patches plus those targets. Returns (student, its base chain,
+    training seconds, what the fold record says about the targets)."""
+    t0 = time.perf_counter()
+    width = 8 if args.quick else base.band.width        # quick: the small scenes are narrower than K = 48
+    folder = teacher_run.parent / f"{teacher_run.name}_targets_K{width}"
+    files = []
+    for name in train_names:
+        s = load(name)
+        md = search_range("middlebury", s, None)
+        if md <= width:                                 # not banded: GT patches only
+            continue
+        cfg = dataclasses.replace(base, max_disp=md, band=dataclasses.replace(base.band, width=width)).validate()
+        files += cache_targets([(name, lambda s=s: (as_grey(s.left, "left"), as_grey(s.right, "right")))],
+                               teacher, cfg, folder, 200 if args.quick else STUDENT_PIXELS, progress=False)
+    dense = load_targets(files) if files else None
+    compact = load_model(shipped_weights(STUDENT_INIT))
+    cfg = train_preset("cpu", net=compact.net, seed=args.seed, steps=2 if args.quick else args.steps, lr=args.lr,
+                       checkpoint_every=500, val_every=10 ** 9, log_every=50, dense=1.0 if files else 0.0,
+                       dense_batch=8 if args.quick else 64)
+    run = teacher_run.parent / f"{teacher_run.name}_student"
+    done = run / "train_summary.json"
+    if not (done.is_file() and json.loads(done.read_text()).get("steps") == cfg.steps):
+        print(f"fold {i}: student {STUDENT_INIT} on {', '.join(train_names)} + "
+              f"{dense.size if dense else 0} teacher target pixels ({cfg.steps} steps)", flush=True)
+        fit(cfg, [load(n) for n in train_names], None, run, resume=True, progress=False, init=compact, dense=dense,
+            info={"data": {"dataset": "middlebury", "frames": train_names, "val_frames": [],
+                           "dense_targets": [f.stem for f in files]},
+                  "init": STUDENT_INIT, "dense_from": str(teacher_run)})
+    c = base.cost
+    student_base = dataclasses.replace(base, cost=dataclasses.replace(c, candidates=16, unsure_share=0.0,
+                                                                      unsure_candidates=0)).validate()
+    info = {"student_init": STUDENT_INIT, "target_scenes": [f.stem for f in files],
+            "target_pixels": dense.size if dense else 0, "target_k": width}
+    return load_model(run / "checkpoint.msgpack"), student_base, time.perf_counter() - t0, info
 
 
 if __name__ == "__main__":

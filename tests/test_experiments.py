@@ -134,6 +134,20 @@ def test_middlebury_folds_quick(dirs):
             assert in_range(r[m]["bad2"]) and in_range(r[m]["bad3"]) and r[m]["bad3"] <= r[m]["bad2"]
 
 
+def test_middlebury_folds_student_quick(dirs):
+    run("middlebury_folds.py", dirs, "--student")
+    data = json.loads((dirs["out"] / "middlebury_folds_student_quick.json").read_text())
+    assert data["student"] is True and [r["scene"] for r in data["scenes"]] == ["Tsukuba_2001", "Venus_2001"]
+    for fold in data["folds"]:                # the compact student, distilled from the fold's own teacher
+        assert fold["student_init"] == "kitti2015_compact" and fold["target_pixels"] > 0
+        assert fold["target_scenes"] == fold["train"] and not set(fold["held_out"]) & set(fold["target_scenes"])
+        assert fold["config"]["cost"]["candidates"] == 16 and fold["config"]["cost"]["unsure_share"] == 0.0
+    trained = json.loads((dirs["runs"] / "fold0_s0_quick_student" / "config.json").read_text())
+    assert trained["net"]["features"] == 16 and trained["dense"] == 1.0 and trained["init"] == "kitti2015_compact"
+    assert data["becomes_best"] == (data["mean"]["learned"]["bad3"] <= data["student_bar"])
+    assert all(data["seconds"][m] > 0 for m in ("learned", "census", "sgbm"))
+
+
 def test_self_training_quick(dirs):
     import numpy as np
 
