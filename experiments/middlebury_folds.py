@@ -131,7 +131,6 @@ def main():
     table = [[r["scene"], r["fold"], r["max_disp"]] + [f"{r[m]['bad2']:.2f} / {r[m]['bad3']:.2f}" for m, _ in methods]
              for r in rows]
     table.append(["**mean**", "", ""] + [f"**{mean[m]['bad2']:.2f} / {mean[m]['bad3']:.2f}**" for m, _ in methods])
-    title = "# Middlebury dev scenes with folds (> 2 px / > 3 px %, all-pixel GT)\n\n"
     if args.student:
         title = ("# Middlebury with folds: the compact student of issue 26 (> 2 px / > 3 px %, all-pixel GT)\n\n"
                  f"Each scene scored by `{STUDENT_INIT}` fine-tuned on the other folds' scenes (GT patches, "
@@ -143,10 +142,11 @@ def main():
                  f"`best` for Middlebury if its mean > 3 px is at most {STUDENT_BAR:.2f} % (the full network's fold "
                  f"record): **{mean['learned']['bad3']:.2f} % -> "
                  f"{'it does' if mean['learned']['bad3'] <= STUDENT_BAR else 'it does not'}**.\n\n")
-    if not args.student:
-        title += (f"Each scene scored by a model fine-tuned from the KITTI model `{args.init}` ({cfg.steps} steps, "
-                  f"lr {args.lr}) on the other folds' scenes, with chain settings searched on those scenes; "
-                  f"out-of-view strip of the learned chain: `cost.border {args.border}`.\n\n")
+    else:
+        title = ("# Middlebury dev scenes with folds (> 2 px / > 3 px %, all-pixel GT)\n\n"
+                 f"Each scene scored by a model fine-tuned from the KITTI model `{args.init}` ({cfg.steps} steps, "
+                 f"lr {args.lr}) on the other folds' scenes, with chain settings searched on those scenes; "
+                 f"out-of-view strip of the learned chain: `cost.border {args.border}`.\n\n")
     md = (title
           + md_table(["scene", "fold", "disparities"] + [label for _, label in methods], table) + "\n\n"
           + "\n".join(f"* fold {f['fold']} (held out {', '.join(f['held_out'])}): settings "
