@@ -24,6 +24,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from .volume import windows
+
 _BIG = 1e9   # finite stand-in for +inf outside the disparity range
 
 
@@ -166,16 +168,18 @@ def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, real=None) -> j
 def _band_step(prev, prev_off, c, off, p1, p2):
     """One banded SGM step: prev ``f32[N, K]`` with bands ``prev_off`` ``i32[N]``, the cost
     ``c`` ``f32[N, K]`` with bands ``off``; returns the path cost ``f32[N, K]`` in ``off``'s bands.
-    (Three element gathers measured faster here than one window gather of K + 2 entries.)"""
-    k = c.shape[-1]
+
+    The predecessor's L(d) and min(L(d - 1), L(d + 1)) are laid out side by side in its own
+    band, padded with _BIG by K + 2 on each side, and each pixel reads its band from that as one
+    window (a shift of |s| > K + 1 reads only padding, as it should). One window of pairs measured
+    faster than three element gathers (docs/results.md)."""
+    n, k = c.shape
     m = prev.min(axis=-1, keepdims=True)
-    padded = jnp.pad(prev, ((0, 0), (1, 1)), constant_values=_BIG)        # index -1 and K: big
-    e = jnp.arange(k, dtype=jnp.int32)[None, :] + (off - prev_off)[:, None]
-
-    def at(i):
-        return jnp.take_along_axis(padded, jnp.clip(i, -1, k) + 1, axis=-1)
-
-    best = jnp.minimum(jnp.minimum(at(e), jnp.minimum(at(e - 1), at(e + 1)) + p1), m + p2)
+    ext = jnp.pad(prev, ((0, 0), (k + 2, k + 2)), constant_values=_BIG)             # [N, 3K + 4]
+    start = jnp.clip(off - prev_off, -(k + 1), k + 1) + k + 1
+    same = windows(ext[:, 1:-1], start, k)
+    near = windows(jnp.minimum(ext[:, :-2], ext[:, 2:]), start, k)
+    best = jnp.minimum(jnp.minimum(same, near + p1), m + p2)
     return c + best - m
 
 
@@ -185,11 +189,23 @@ def _add_line(total, out, i, axis: int):
     return jax.lax.dynamic_update_index_in_dim(total, line + out, i, axis)
 
 
-def _match_big(big_right_line, x, disp):
-    """bool[N, K]: big_right at the match columns x - d (clipped to 0 as the cost is), for a
-    line of ``big_right_line`` bool[W] (x: i32[N, 1] or a scalar, disp: i32[N, K])."""
-    w = big_right_line.shape[-1]
-    return big_right_line[jnp.clip(x - disp, 0, w - 1)]
+def _match_lines(big_right, max_disp: int):
+    """``bool[H, W + D - 1]``: each row of ``big_right`` left-padded with its column 0 (the match
+    columns x - d < 0 repeat column 0, as the cost does) and reversed, so that the pixel x with
+    band offset o reads its match columns x - o - k, k = 0 .. K - 1, as one window starting at
+    W - 1 - x + o (:func:`_match_window`)."""
+    return jnp.pad(big_right, ((0, 0), (max_disp - 1, 0)), mode="edge")[:, ::-1]
+
+
+def _match_window(lines, w: int, x, off, k: int):
+    """bool[N, K]: big_right at the match columns x - off - k (k = 0 .. K - 1) from ``lines``
+    (:func:`_match_lines` of an image ``w`` wide): one row ``[L]`` shared by the N pixels at
+    columns ``x`` ``i32[N]`` (the row sweep), or N rows ``[N, L]`` at one column ``x`` (the
+    column sweep). One window per pixel instead of K element gathers."""
+    start = w - 1 - x + off
+    if lines.ndim == 1:
+        return jax.vmap(lambda st: jax.lax.dynamic_slice_in_dim(lines, st, k))(start)
+    return windows(lines, start, k)
 
 
 def _band_row_sweep(vol, total, specs, cfg, real=None):
@@ -200,7 +216,6 @@ def _band_row_sweep(vol, total, specs, cfg, real=None):
     h, w, k = cost.shape
     r0, r1 = (0, h) if real is None else (real[0], real[1])
     xs = jnp.arange(w)
-    ks = jnp.arange(k, dtype=jnp.int32)
 
     def row_of(i, dy):
         return r0 + i if dy == 1 else r1 - 1 - i
@@ -228,7 +243,7 @@ def _band_row_sweep(vol, total, specs, cfg, real=None):
             br = None
             if big_right is not None:
                 line = jax.lax.dynamic_index_in_dim(big_right, y, 0, keepdims=False)
-                br = _match_big(line, xs[:, None], off_y[:, None] + ks)
+                br = _match_window(line, w, xs, off_y, k)
             c = jax.lax.dynamic_index_in_dim(cost, y, 0, keepdims=False)
             out = _band_step(prev, poff, c, off_y, *_penalties(cfg, bl, br, p1_scale))
             outs.append(out)
@@ -252,7 +267,6 @@ def _band_column_sweep(vol, total, specs, cfg, real=None):
     cost, offset = vol.cost, vol.offset
     h, w, k = cost.shape
     c0, c1 = (0, w) if real is None else (real[2], real[3])
-    ks = jnp.arange(k, dtype=jnp.int32)
 
     def col_of(i, dx):
         return c0 + i if dx == 1 else c1 - 1 - i
@@ -266,8 +280,7 @@ def _band_column_sweep(vol, total, specs, cfg, real=None):
             bl = jax.lax.dynamic_index_in_dim(big_left, x, 1, keepdims=False)
             br = None
             if big_right is not None:
-                cols = jnp.clip(x - (off_x[:, None] + ks), 0, w - 1)                      # [H, K]
-                br = jnp.take_along_axis(big_right, cols, axis=1)
+                br = _match_window(big_right, w, x, off_x, k)
             c = jax.lax.dynamic_index_in_dim(cost, x, 1, keepdims=False)
             outs.append(_band_step(prev, poffs[len(outs)], c, off_x, *_penalties(cfg, bl, br)))
             offs_out.append(off_x)
@@ -295,8 +308,8 @@ def sgm_volume(vol, left: jax.Array, right: jax.Array, cfg):
         return vol.with_cost(sgm(vol.cost, left, right, cfg, real))
     thr = cfg.grad_threshold
 
-    def right_big(dy, dx):
-        return _gradient_big(right, dy, dx, thr) if cfg.adaptive else None
+    def right_big(dy, dx):   # in the layout of _match_lines
+        return _match_lines(_gradient_big(right, dy, dx, thr), vol.max_disp) if cfg.adaptive else None
 
     total = jnp.zeros_like(vol.cost)
     total = _band_column_sweep(vol, total, [(dx, _gradient_big(left, 0, dx, thr), right_big(0, dx))
