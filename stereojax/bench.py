@@ -243,6 +243,22 @@ def sgbm_timings(left, right, max_disp, repeats=3) -> dict:
     return out
 
 
+#: the vector units that decide this CPU's speed on the chain (the bench's numbers are for one machine)
+SIMD_FLAGS = ("avx", "avx2", "fma", "avx512f", "avx512_bf16", "amx_tile")
+
+
+def cpu_description() -> str:
+    """The processor's model name and its vector units from /proc/cpuinfo, e.g. "AMD EPYC (avx, fma)"."""
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return platform.processor() or platform.machine()
+    model = next((line.split(":", 1)[1].strip() for line in info.splitlines() if line.startswith("model name")),
+                 platform.machine())
+    flags = set(next((line.split(":", 1)[1].split() for line in info.splitlines() if line.startswith("flags")), []))
+    return f"{model} ({', '.join(f for f in SIMD_FLAGS if f in flags) or 'no AVX'})"
+
+
 def matmul_rate(n: int = 4096, repeats: int = 3) -> float:
     """Measured dense f32 matmul rate of this machine, GFLOP/s (n x n x n)."""
     import jax
@@ -328,7 +344,8 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -
     cfg = preset("census", max_disp)
     left, right, src = _bench_pair(data=data)
     print(f"bench: {src}, {left.shape[1]}x{left.shape[0]}, {max_disp} disparities, "
-          f"{os.cpu_count()} CPU cores, jax {jax.__version__} on {jax.default_backend()}", flush=True)
+          f"{os.cpu_count()} CPU cores ({cpu_description()}), jax {jax.__version__} on {jax.default_backend()}",
+          flush=True)
     sgbm = [sgbm_timings(left, right, max_disp, repeats)]
     print(f"  OpenCV StereoSGBM (3-way, {cv2.getNumThreads()} threads): {sgbm[0]}", flush=True)
     stages = stage_timings(left, right, cfg, repeats)
@@ -357,7 +374,7 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -
     anchors_file = out_dir / "anchors.json"
     anchors = json.loads(anchors_file.read_text()) if anchors_file.is_file() else None
     result = {"frame": src, "shape": list(left.shape[:2]), "max_disp": max_disp,
-              "cpu_cores": os.cpu_count(), "machine": platform.processor() or platform.machine(),
+              "cpu_cores": os.cpu_count(), "machine": cpu_description(),
               "jax": jax.__version__, "backend": jax.default_backend(), "sgbm_s": sgbm,
               "sgbm_padded_s": sgbm_pad, "census_stages": stages, "profiles": profiles,
               "chains": chains, "best": best, "processes": procs, "demo": demo,
@@ -541,7 +558,7 @@ def format_bench(r: dict) -> str:
         return "met" if ok else "**not met**"
 
     lines = [f"# Benchmark: {r['frame']}, {w}x{h}, {r['max_disp']} disparities, {r['cpu_cores']} CPU cores, "
-             f"jax {r['jax']} ({r['backend']})", "",
+             f"jax {r['jax']} ({r['backend']}), {r.get('machine', '')}", "",
              "All numbers from one run of `make bench` (`stereojax bench`); OpenCV StereoSGBM timed at the "
              "start and the end of the run (median), so ratios compare like with like.", "",
              "## Warm time per frame (after compilation), ratio to OpenCV SGBM", "",

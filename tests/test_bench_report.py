@@ -42,7 +42,10 @@ def test_accuracy_records_come_from_the_results_files():
 
 def test_issue26_lines_follow_the_numbers_of_the_run():
     r = _run()
-    lines = _section(bench.format_bench(r))
+    r["machine"] = "Some CPU (avx, fma)"
+    md = bench.format_bench(r)
+    assert "Some CPU (avx, fma)" in md.splitlines()[0]          # the numbers are for one machine
+    lines = _section(md)
     assert len(lines) == 6
     best = r["best"]
     ratio = r["chains"][best]["warm_s"] / r["sgbm_padded_s"]
@@ -74,6 +77,11 @@ def test_report_without_demo_or_records_leaves_those_lines_out():
 
 
 @pytest.mark.slow
+def test_cpu_description_names_the_model_and_vector_units():
+    text = bench.cpu_description()
+    assert text and "(" in text and text.endswith(")")
+
+
 def test_demo_child_times_the_demo_method():
     out = bench.demo_child(repeats=1)
     assert out["shape"] == [500, 741] and out["max_disp"] == 64
