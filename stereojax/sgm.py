@@ -169,10 +169,10 @@ def _band_step(prev, prev_off, c, off, p1, p2):
     """One banded SGM step: prev ``f32[N, K]`` with bands ``prev_off`` ``i32[N]``, the cost
     ``c`` ``f32[N, K]`` with bands ``off``; returns the path cost ``f32[N, K]`` in ``off``'s bands.
 
-    The predecessor's L(d) and min(L(d - 1), L(d + 1)) are laid out side by side in its own
-    band, padded with _BIG by K + 2 on each side, and each pixel reads its band from that as one
-    window (a shift of |s| > K + 1 reads only padding, as it should). One window of pairs measured
-    faster than three element gathers (docs/results.md)."""
+    The predecessor's L(d) and min(L(d - 1), L(d + 1)) are computed in its own band, padded with
+    _BIG by K + 1 on each side, and each pixel reads its band of each as one window (a band shift
+    |s| > K + 1 would read only padding, so it is clipped to K + 1). Two windows measured faster
+    than three element gathers, and than one window of stacked pairs (docs/results.md)."""
     n, k = c.shape
     m = prev.min(axis=-1, keepdims=True)
     ext = jnp.pad(prev, ((0, 0), (k + 2, k + 2)), constant_values=_BIG)             # [N, 3K + 4]

@@ -104,8 +104,9 @@ def windows(values: jax.Array, start: jax.Array, size: int) -> jax.Array:
 
     A gather of contiguous slices (``vmap`` of ``dynamic_slice``): on the CPU about 3x faster
     than gathering the same entries one by one with ``take_along_axis`` for the census band
-    (:func:`stereojax.cost.census_band`); for CBCA and SGM it was not faster, so they gather
-    entries (docs/results.md).
+    (:func:`stereojax.cost.census_band`), and faster for SGM's predecessor and its right-image
+    gradients (:mod:`stereojax.sgm`); for CBCA it was slower, so CBCA gathers entries
+    (docs/results.md).
     """
     def one(v, s):
         return jax.lax.dynamic_slice_in_dim(v, s, size, axis=0)
