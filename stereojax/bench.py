@@ -459,6 +459,11 @@ def _top(stages: dict, n: int = 3) -> str:
                      sorted(stages.items(), key=lambda kv: -kv[1]["warm_s"])[:n])
 
 
+def _network_s(prof: dict) -> float:
+    """Warm seconds of a learned chain's tower and head stages (its profile's)."""
+    return sum(v["warm_s"] for name, v in prof["stages"].items() if name.startswith(("tower", "head")))
+
+
 def best_targets(r: dict) -> list[str]:
     """The lines on issue 26's targets: met, or by how much they are missed and why."""
     sg, t, best = r["sgbm_padded_s"], BEST_TARGETS, r["best"]
@@ -473,7 +478,7 @@ def best_targets(r: dict) -> list[str]:
     else:
         short = "No student record (experiments/results/dense_distill_final.json)"
     if "warm_s" in chain and prof:
-        net = sum(v["warm_s"] for name, v in prof["stages"].items() if name.startswith(("tower", "head")))
+        net = _network_s(prof)
         _target_line(out, f"`best` (= `{best}`), × SGBM", chain["warm_s"] / sg, t["best_x_sgbm"], "×",
                      f"{chain['warm_s']:.2f} s, of which tower + head {net:.2f} s ({prof['network_tflop']:.1f} TFLOP "
                      f"at {prof['evals_per_pixel']:g} head evaluations per pixel) and the chain around them "
@@ -516,32 +521,26 @@ def band_targets(r: dict) -> list[str]:
     k = cfg.get("width", 0)
     h, w = r["shape"]
     out = []
-
-    def line(name, value, goal, unit, why=""):
-        _target_line(out, name, value, goal, unit, why)
-
-    top = _top
-
     if "warm_s" in chains.get("census", {}):
-        line("census chain, × SGBM", chains["census"]["warm_s"] / sg, t["census_x_sgbm"], "×",
-             f"Largest stages: {top(r['census_stages'])}; the band kernels gather each neighbour's band "
-             f"(K = {k}: f32[H, W, K] is {h * w * max(k, 1) * 4 / 1e6:.0f} MB) where the full range shifts slices.")
+        _target_line(out, "census chain, × SGBM", chains["census"]["warm_s"] / sg, t["census_x_sgbm"], "×",
+                      f"Largest stages: {_top(r['census_stages'])}; the band kernels gather each neighbour's band "
+                      f"(K = {k}: f32[H, W, K] is {h * w * max(k, 1) * 4 / 1e6:.0f} MB) where the full range shifts slices.")
     prof = r["profiles"].get("kitti2015_compact")
     if prof and "warm_s" in chains.get("kitti2015_compact", {}):
-        line("`kitti2015_compact`, × SGBM", chains["kitti2015_compact"]["warm_s"] / sg, t["compact_x_sgbm"], "×",
-             f"Largest stages: {top(prof['stages'])}.")
+        _target_line(out, "`kitti2015_compact`, × SGBM", chains["kitti2015_compact"]["warm_s"] / sg, t["compact_x_sgbm"], "×",
+                      f"Largest stages: {_top(prof['stages'])}.")
     prof = r["profiles"].get("kitti2015")
     if prof and "warm_s" in chains.get("kitti2015", {}):
-        net = sum(v["warm_s"] for name, v in prof["stages"].items() if name.startswith(("tower", "head")))
+        net = _network_s(prof)
         rest = chains["kitti2015"]["warm_s"] - net
-        line("`kitti2015` without its tower and head, × SGBM", rest / sg, t["best_chain_x_sgbm"], "×",
-             f"{rest:.2f} s of {chains['kitti2015']['warm_s']:.2f} s (tower + head {net:.2f} s); "
-             f"largest other stages: {top({n: v for n, v in prof['stages'].items() if not n.startswith(('tower', 'head'))})}.")
+        _target_line(out, "`kitti2015` without its tower and head, × SGBM", rest / sg, t["best_chain_x_sgbm"], "×",
+                      f"{rest:.2f} s of {chains['kitti2015']['warm_s']:.2f} s (tower + head {net:.2f} s); "
+                      f"largest other stages: {_top({n: v for n, v in prof['stages'].items() if not n.startswith(('tower', 'head'))})}.")
     for m, p in r["processes"].items():
         peak = p["cold"]["peak_rss_gib"]
-        line(f"peak RSS of a `{m}` predict process (cold cache), GiB", peak, t["peak_rss_gib"], " GiB",
-             f"With the compiled chain read from the cache: {p['cache_hit']['peak_rss_gib']:.2f} GiB "
-             "(compiling takes about 0.6 GiB); the rest is XLA's buffers of the chain.")
+        _target_line(out, f"peak RSS of a `{m}` predict process (cold cache), GiB", peak, t["peak_rss_gib"], " GiB",
+                      f"With the compiled chain read from the cache: {p['cache_hit']['peak_rss_gib']:.2f} GiB "
+                      "(compiling takes about 0.6 GiB); the rest is XLA's buffers of the chain.")
     return out
 
 
