@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stereojax import Predictor, coarse, preset
+from stereojax import Predictor, chain, preset
 from stereojax.config import BandConfig
 from stereojax.data import load_kitti2015
 from stereojax.data.datasets import DEFAULT_DATA
@@ -87,7 +87,7 @@ def main(argv=None):
         band = parse_band(text)
         cfg = with_band(base, text)
         predict = Predictor(cfg, model)
-        bands_fn = jax.jit(lambda a, b, c=cfg: coarse.bands(a, b, c))
+        bands_fn = jax.jit(lambda a, b, c=cfg: chain.bands(a, b, c))
         cover, errs, secs = [], [], []
         predict(samples[0].left, samples[0].right)                       # compile
         for s in samples:

@@ -19,6 +19,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from .volume import BIG
+
 
 class Arms(NamedTuple):
     """Arm lengths in pixels (0 .. arm_length), each ``i32[H, W]``."""
@@ -36,9 +38,9 @@ def cross_arms(grey: jax.Array, tau: float, arm_length: int, mask=None) -> Arms:
     arm reaches into the padding, as none reaches out of an unpadded image.
     """
     h, w = grey.shape
+    big = jnp.float32(BIG)   # padding and out-of-image pixels never join an arm
     if mask is not None:
-        grey = jnp.where(mask, grey, jnp.float32(1e9))
-    big = jnp.float32(1e9)   # out-of-image pixels never join an arm
+        grey = jnp.where(mask, grey, big)
     padded = jnp.pad(grey, arm_length, constant_values=big)
     arms = []
     for dy, dx in ((0, -1), (0, 1), (-1, 0), (1, 0)):

@@ -65,41 +65,46 @@ def _time(fn, *args, repeats=3):
     return out, {"warm_s": warm, "compile_s": max(first - warm, 0.0)}
 
 
-def back_stage_timings(vol, right_offset, gl, gr, cfg, repeats=3) -> dict:
-    """Warm and compile time of every stage after the matching cost, from the chain's own stage
-    list (:data:`stereojax.chain.STAGES`), each stage jitted on its own (returning only the
-    entries it makes, so that passing the state through is not timed)."""
-    import jax
-
-    from . import chain
-
-    rows = {}
-    st = chain.initial_state(vol, right_offset, gl, gr)
-    for name, stage in chain.STAGES:
-        def made(x, fn=stage):
-            out = fn(dict(x), cfg)
-            return {k: v for k, v in out.items() if k not in x or v is not x[k]}
-        new, rows[name] = _time(jax.jit(made), st, repeats=repeats)
-        st = {**st, **new}
-    return rows
-
-
-def stage_timings(left, right, cfg, repeats=3):
-    """Per-stage warm and compile times of a classical chain: the coarse pass (bands), the
-    matching cost, then :func:`back_stage_timings`."""
+def stage_timings(left, right, cfg, model=None, repeats=3) -> dict:
+    """Warm and compile time of every stage of the chain's own list
+    (:data:`stereojax.chain.STAGES`) that does something for ``cfg``, each stage jitted on its own
+    (returning only the fields it makes, so that passing the state through is not timed); each
+    row also has ``entries``, the cost entries of the volume it works on (0: none)."""
     import jax
     import jax.numpy as jnp
 
     from . import chain, pipeline
 
+    variables, net = chain.model_args(cfg, model)
     gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
+    st = chain.initial(gl, gr, variables=variables, net=net)
     rows = {}
-    (off_l, off_r), rows["coarse pass (bands)"] = _time(jax.jit(lambda a, b: chain.bands(a, b, cfg)), gl, gr,
-                                                        repeats=repeats)
-    vol, rows["matching cost (%s)" % cfg.cost.method] = _time(
-        jax.jit(lambda a, b, o: chain.classic_volume(a, b, cfg, o)), gl, gr, off_l, repeats=repeats)
-    rows.update(back_stage_timings(vol, off_r, gl, gr, cfg, repeats))
+    for stage in chain.STAGES:
+        def made(x, fn=stage.fn):
+            out = fn(x, cfg)
+            return {f: getattr(out, f) for f in chain.FIELDS if getattr(out, f) is not getattr(x, f)}
+        changed = jax.eval_shape(made, st)
+        if not changed:          # nothing to do for this config
+            continue
+        new, rows[stage.name] = _time(jax.jit(made), st, repeats=repeats)
+        st = st.replace(**new)
+        rows[stage.name]["entries"] = stage_entries(stage.name, st, cfg)
     return rows
+
+
+def stage_entries(name: str, st, cfg) -> int:
+    """The cost entries a stage works on: the coarse pass's full-range volume at its scale, the
+    candidate chain's and the chain's volume (H x W x K); 0 for the stages without a volume."""
+    if name.startswith("coarse"):
+        s = cfg.band.scale
+        h, w = st.left.shape
+        return -(-h // s) * -(-w // s) * -(-cfg.max_disp // s)
+    if st.vol is None and not name.startswith("candidate"):
+        return 0
+    if name in ("cross arms", "sub-pixel", "median", "bilateral", "left-right check + filling"):
+        return 0
+    h, w = st.left.shape
+    return h * w * (cfg.band.width if cfg.banded else cfg.max_disp)
 
 
 def peak_rss_gib() -> float:
@@ -217,7 +222,8 @@ def process_timings(max_disp: int, method: str, left_path: Path, right_path: Pat
     for name in ("cold", "cache_hit"):
         code = ("import sys, json; from stereojax.cli import main; "
                 f"rc = main(['predict', {str(left_path)!r}, {str(right_path)!r}, '--out', "
-                f"{str(work / ('out_' + method))!r}, '--max-disp', '{max_disp}', '--method', {method!r}]); "
+                f"{str(work / ('out_' + method))!r}, '--max-disp', '{max_disp}', "
+                f"{'--weights' if method in LEARNED else '--method'!r}, {method!r}]); "
                 f"t = json.load(open({str(work / ('out_' + method) / 'timings.json')!r})); "
                 "from stereojax.bench import peak_rss_gib; "
                 "print(json.dumps({'rc': rc, 'peak_rss_gib': peak_rss_gib(), **t}))")
@@ -272,9 +278,9 @@ def matmul_rate(n: int = 4096, repeats: int = 3) -> float:
 
 def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: int = 8,
                     which: str = "best") -> dict:
-    """Warm time of each stage of a learned chain (``which``: "best" or a name of :data:`LEARNED`), each stage
-    jitted on its own; and that network's exact head (every disparity) timed on ``exact_disps``
-    disparities and scaled to ``max_disp`` (the work is linear in D)."""
+    """Warm time of each stage of a learned chain (``which``: "best" or a name of :data:`LEARNED`),
+    :func:`stage_timings`; and that network's exact head (every disparity) timed on
+    ``exact_disps`` disparities and scaled to ``max_disp`` (the work is linear in D)."""
     import jax
     import jax.numpy as jnp
 
@@ -283,26 +289,11 @@ def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: i
 
     model, cfg, name = learned_setup(which, max_disp)
     net, v = model.net, model.variables
-    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
-    rows = {}
-    (fl, fr), rows["tower features, both views"] = _time(
-        jax.jit(lambda a, b: lc.tower_features(net, v, a, b)), gl, gr, repeats=repeats)
-    from . import chain
-
-    (off_l, off_r), rows["coarse pass (bands)"] = _time(jax.jit(lambda a, b: chain.bands(a, b, cfg)), gl, gr,
-                                                        repeats=repeats)
-    ranked, rows["candidate chain (census + CBCA + SGM)"] = _time(
-        jax.jit(lambda a, b, o: lc.ranked_candidates(a, b, cfg, o)), gl, gr, off_l, repeats=repeats)
+    rows = stage_timings(left, right, cfg, model, repeats)
     c = cfg.cost
     evals = c.candidates + c.unsure_share * (c.unsure_candidates - c.candidates)
-    vol, rows[f"head at the candidates ({evals:g} per pixel)"] = _time(
-        jax.jit(lambda f1, f2, rk, o: lc.band_volume(net, v, f1, f2, rk, cfg, o)), fl, fr, ranked, off_l,
-        repeats=repeats)
-    del ranked
-    back = back_stage_timings(vol, off_r, gl, gr, cfg, repeats)
-    rows["CBCA + SGM + refinement of the learned volume"] = {
-        "warm_s": sum(r["warm_s"] for r in back.values()), "compile_s": sum(r["compile_s"] for r in back.values())}
-    del vol
+    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
+    fl, fr = jax.jit(lambda a, b: lc.tower_features(net, v, a, b))(gl, gr)
     _, t = _time(jax.jit(lambda f1, f2: lc.dense_cost(net, v, f1, f2, exact_disps, c.rows_per_tile)),
                  fl, fr, repeats=1)
     h, w = gl.shape
@@ -310,12 +301,16 @@ def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: i
     exact = {"warm_s": exact_s, "compile_s": t["compile_s"],
              "tflop": (network_flops(net, h, w, max_disp) - network_flops(net, h, w, 0)) / 1e12}
     exact["gflop_s"] = exact["tflop"] * 1e3 / exact_s
-    head_key = next(k for k in rows if k.startswith("head"))
-    exact["chain_s"] = sum(r["warm_s"] for k, r in rows.items() if k.startswith(("tower", "CBCA"))) + exact_s
+    exact["chain_s"] = sum(r["warm_s"] for k, r in rows.items() if k not in NETWORK_STAGES) \
+        + rows.get("tower features", {}).get("warm_s", 0.0) + exact_s
     return {"model": name, "net": dataclasses.asdict(net), "config": cfg.to_dict(), "stages": rows,
-            "exact": exact, "head_key": head_key, "evals_per_pixel": evals,
+            "exact": exact, "evals_per_pixel": evals,
             "network_tflop": network_flops(net, h, w, evals) / 1e12,
             "head_tflop": (network_flops(net, h, w, evals) - network_flops(net, h, w, 0)) / 1e12}
+
+
+#: the stages of a learned chain that are its network: the tower, and the head (its matching cost)
+NETWORK_STAGES = ("tower features", "matching cost")
 
 
 def _kitti_files(left, right, work: Path, data=None) -> tuple[Path, Path]:
@@ -348,7 +343,7 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -
           flush=True)
     sgbm = [sgbm_timings(left, right, max_disp, repeats)]
     print(f"  OpenCV StereoSGBM (3-way, {cv2.getNumThreads()} threads): {sgbm[0]}", flush=True)
-    stages = stage_timings(left, right, cfg, repeats)
+    stages = stage_timings(left, right, cfg, repeats=repeats)
     for name, t in stages.items():
         print(f"  census {name:36s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
     profiles = {}
@@ -366,7 +361,7 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         lp, rp = _kitti_files(left, right, work, data)
-        procs = {m: process_timings(max_disp, m, lp, rp, work) for m in ("best", "census")}
+        procs = {m: process_timings(max_disp, m, lp, rp, work) for m in ("best", "kitti2015_compact", "census")}
     print(f"  stereojax predict processes (cold, cache hit): {procs}", flush=True)
     sgbm.append(sgbm_timings(left, right, max_disp, repeats))
     sgbm_pad = float(np.median([t["padded"] for t in sgbm]))
@@ -402,6 +397,87 @@ BEST_TARGETS = {"best_x_sgbm": 30.0, "stretch_x_sgbm": 15.0, "stretch_val": 3.92
                 "peak_rss_gib": 1.2, "demo_s": 5.0, "val": 3.97}
 
 
+#: the targets of issue 36 (one pass through the chain): ratios to SGBM of the same run; peak RSS of
+#: a census and a compact predict process with the compiled chain read from the cache
+CHAIN_TARGETS = {"census_x_sgbm": 6.0, "compact_x_sgbm": 15.0, "best_chain_x_sgbm": 8.0, "peak_rss_gib": 1.0}
+
+#: the stages whose cost entries per second the report sets against OpenCV's (issue 36)
+RATE_STAGES = ("coarse pass (bands)", "matching cost", "candidate chain", "CBCA before SGM", "SGM",
+               "CBCA after SGM", "right view + WTA")
+
+
+def entry_rates(r: dict) -> list[dict]:
+    """Cost entries per second of the band kernels of each profiled chain against OpenCV SGBM's
+    (its H x W x D entries in its measured time, cost and every path included): one row per
+    (chain, stage) of :data:`RATE_STAGES` that ran, with ``x_opencv`` the time per entry
+    relative to OpenCV's."""
+    h, w = r["shape"]
+    sgbm_rate = h * w * r["max_disp"] / r["sgbm_padded_s"]
+    chains = [("census", r["census_stages"])] + [(m, p["stages"]) for m, p in r["profiles"].items()]
+    rows = []
+    for chain_name, stages in chains:
+        for name in RATE_STAGES:
+            t = stages.get(name)
+            if not t or not t.get("entries") or t["warm_s"] <= 0:
+                continue
+            if chain_name != "census" and name == "matching cost":
+                continue          # the learned head: network time, not a band kernel
+            rate = t["entries"] / t["warm_s"]
+            rows.append({"chain": chain_name, "stage": name, "entries": t["entries"], "warm_s": t["warm_s"],
+                         "rate": rate, "x_opencv": sgbm_rate / rate})
+    return rows
+
+
+def chain_targets(r: dict) -> list[str]:
+    """The lines on issue 36's targets: met, or by how much they are missed and which stage holds it."""
+    sg, chains, t = r["sgbm_padded_s"], r["chains"], CHAIN_TARGETS
+    rates = {(row["chain"], row["stage"]): row for row in entry_rates(r)}
+
+    def held(stages: dict, chain_name: str) -> str:
+        name, v = max(((n, v) for n, v in stages.items() if n not in NETWORK_STAGES or chain_name == "census"),
+                      key=lambda kv: kv[1]["warm_s"])
+        rate = rates.get((chain_name, name))
+        per = (f", {rate['rate'] / 1e6:.0f} M entries/s, {rate['x_opencv']:.1f}× OpenCV's time per entry"
+               if rate else "")
+        return f"Held most by {name} ({v['warm_s']:.2f} s{per}); slowest: {_top(stages)}."
+
+    out = []
+    if "warm_s" in chains.get("census", {}):
+        _target_line(out, "census chain, × SGBM", chains["census"]["warm_s"] / sg, t["census_x_sgbm"], "×",
+                     held(r["census_stages"], "census"))
+    prof = r["profiles"].get("kitti2015_compact")
+    if prof and "warm_s" in chains.get("kitti2015_compact", {}):
+        _target_line(out, "`kitti2015_compact`, × SGBM", chains["kitti2015_compact"]["warm_s"] / sg,
+                     t["compact_x_sgbm"], "×", held(prof["stages"], "kitti2015_compact"))
+    prof = r["profiles"].get("kitti2015")
+    if prof and "warm_s" in chains.get("kitti2015", {}):
+        net = _network_s(prof)
+        rest = chains["kitti2015"]["warm_s"] - net
+        _target_line(out, "the chain around `kitti2015`'s tower and head, × SGBM", rest / sg, t["best_chain_x_sgbm"],
+                     "×", f"{rest:.2f} s of {chains['kitti2015']['warm_s']:.2f} s (tower + head {net:.2f} s). "
+                     + held(prof["stages"], "kitti2015"))
+    for m in ("census", "kitti2015_compact"):
+        p = r["processes"].get(m)
+        if p:
+            _target_line(out, f"peak RSS of a `{m}` predict process, compiled chain from the cache",
+                         p["cache_hit"]["peak_rss_gib"], t["peak_rss_gib"], " GiB",
+                         f"Cold cache: {p['cold']['peak_rss_gib']:.2f} GiB; the rest is the interpreter, jax and "
+                         "XLA's buffers of the chain.")
+    return out
+
+
+def rate_table(r: dict) -> list[str]:
+    """The markdown table of :func:`entry_rates`."""
+    h, w = r["shape"]
+    n = h * w * r["max_disp"]
+    lines = [f"OpenCV SGBM: {n / 1e6:.0f} M entries ({w}x{h}x{r['max_disp']}) in {r['sgbm_padded_s']:.3f} s = "
+             f"{n / r['sgbm_padded_s'] / 1e6:.0f} M entries/s (its cost, every path and its WTA).", "",
+             "| chain | stage | M entries | warm s | M entries/s | × OpenCV's time per entry |", "|---|---|---|---|---|---|"]
+    lines += [f"| {x['chain']} | {x['stage']} | {x['entries'] / 1e6:.1f} | {x['warm_s']:.3f} | {x['rate'] / 1e6:.0f} | "
+              f"{x['x_opencv']:.1f} |" for x in entry_rates(r)]
+    return lines
+
+
 def accuracy_records(out_dir: Path) -> dict:
     """The accuracy records the targets of issue 26 are read against (other runs, not this one):
     the full KITTI network's and the chosen student's validation > 3 px, and the Middlebury
@@ -425,21 +501,12 @@ def accuracy_records(out_dir: Path) -> dict:
     return out
 
 
-#: stage order in the report (JSON round trips sort the keys)
-_STAGE_ORDER = ("tower", "coarse", "candidate", "head", "CBCA + SGM", "matching cost")
-
-
-def _stage_order() -> tuple:
+def _ordered(stages: dict) -> list:
+    """The rows of a stage profile in the chain's order (JSON round trips sort the keys)."""
     from .chain import STAGES
 
-    return _STAGE_ORDER + tuple(name for name, _ in STAGES)
-
-
-def _ordered(stages: dict) -> list:
-    def rank(name):
-        order = _stage_order()
-        return next((i for i, p in enumerate(order) if name.startswith(p)), len(order))
-    return sorted(stages.items(), key=lambda kv: rank(kv[0]))
+    order = [s.name for s in STAGES]
+    return sorted(stages.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else len(order))
 
 
 def _arch(net: dict) -> str:
@@ -461,7 +528,7 @@ def _top(stages: dict, n: int = 3) -> str:
 
 def _network_s(prof: dict) -> float:
     """Warm seconds of a learned chain's tower and head stages (its profile's)."""
-    return sum(v["warm_s"] for name, v in prof["stages"].items() if name.startswith(("tower", "head")))
+    return sum(v["warm_s"] for name, v in prof["stages"].items() if name in NETWORK_STAGES)
 
 
 def best_targets(r: dict) -> list[str]:
@@ -535,7 +602,7 @@ def band_targets(r: dict) -> list[str]:
         rest = chains["kitti2015"]["warm_s"] - net
         _target_line(out, "`kitti2015` without its tower and head, × SGBM", rest / sg, t["best_chain_x_sgbm"], "×",
                       f"{rest:.2f} s of {chains['kitti2015']['warm_s']:.2f} s (tower + head {net:.2f} s); "
-                      f"largest other stages: {_top({n: v for n, v in prof['stages'].items() if not n.startswith(('tower', 'head'))})}.")
+                      f"largest other stages: {_top({n: v for n, v in prof['stages'].items() if n not in NETWORK_STAGES})}.")
     for m, p in r["processes"].items():
         peak = p["cold"]["peak_rss_gib"]
         _target_line(out, f"peak RSS of a `{m}` predict process (cold cache), GiB", peak, t["peak_rss_gib"], " GiB",
@@ -592,6 +659,11 @@ def format_bench(r: dict) -> str:
                   + f", SGBM {a['sgbm_s']:.3f} s; so `best` is {a['best_s'] / a['pandora_s']:.2f}× Pandora's time"
                   + (f" and `kitti2015_compact` {a['compact_s'] / a['pandora_s']:.2f}×" if "compact_s" in a else "")
                   + " ([anchors.md](anchors.md))."]
+    if all("entries" in v for v in r["census_stages"].values()):
+        lines += ["", "## The targets of issue 36 (one pass through the chain), met or missed, and why", ""]
+        lines += chain_targets(r)
+        lines += ["", "## Cost entries per second of the band kernels, against OpenCV's", ""]
+        lines += rate_table(r)
     lines += ["", "## The targets of issue 25 (bands), met or missed, and why", ""]
     lines += band_targets(r)
     lines += ["", "## The targets of issue 26 (`best` in two seconds), met or missed, and why", ""]

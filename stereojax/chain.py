@@ -1,43 +1,112 @@
-"""The method's chain, written once: bands -> matching cost -> CBCA -> SGM -> CBCA -> WTA ->
-right view and left-right check -> filling -> confidence -> sub-pixel -> median -> bilateral.
+"""The method's chain, written once: bands -> tower -> candidates -> matching cost -> cross arms
+-> CBCA -> SGM -> CBCA -> WTA -> right view and left-right check -> filling -> confidence ->
+sub-pixel -> median -> bilateral.
 
-Every stage after the matching cost takes and returns a state dict whose volume is a
-:class:`~stereojax.volume.CostVolume` (full range or per-pixel bands, see
-:mod:`stereojax.volume`); :data:`STAGES` lists them in order, :func:`run` runs them, and
-``stereojax bench`` times the same list one stage at a time. The front of the chain (the
-coarse pass that sets the bands, and the matching cost in those bands) is :func:`front`:
-:func:`bands`, then :func:`classic_volume` or the learned cost of :mod:`stereojax.learned_cost`.
+Between stages passes one frozen :class:`State` (a pytree), whose fields say what each stage
+reads and writes. A stage is ``State -> State`` (with the chain's static config);
+:data:`STAGES` lists them in order, the one place where the order is written, and :func:`run`
+runs any sub-list of it. The coarse pass that sets the bands (:data:`COARSE`) and the census
+chain that ranks the learned head's candidates (:data:`CANDIDATE`) are sub-lists of the same
+stages, run by the same :func:`run` on a config of their own (:func:`stereojax.coarse.coarse_config`,
+:func:`stereojax.learned_cost.candidate_config`). ``stereojax bench`` times :data:`STAGES` one
+stage at a time.
+
+What several stages share is computed once per frame and carried: the cross arms of the left
+image at full resolution (the candidate chain's serve the final chain), the bands (the coarse
+pass runs once for both views), the tower features. A stage that has nothing to do for a config
+(no bands, a classical cost, a disabled check) returns the state unchanged.
 
 This module is the only one that knows the methods: :func:`model_args` checks a model against
-the cost method, and :func:`two_programs` says when a method runs as two compiled programs
+the cost method, and :func:`split` says where a method's chain is cut into two compiled programs
 (:func:`first_program`, :func:`second_program`; the pruned learned cost, for its peak memory).
-The inference code (:mod:`stereojax.pipeline`: inputs, buckets, compiled programs, Predictor)
-compiles what this module gives it without naming a method.
+The inference code (:mod:`stereojax.pipeline`) compiles what this module gives it without naming
+a method.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-from typing import Callable
+from dataclasses import dataclass
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from . import aggregation, coarse, cost as cost_mod, refine
-from .compile_cache import real_pixels
+from .aggregation import Arms
 from .sgm import sgm, sgm_volume
-from .volume import OUT_OF_BAND, CostVolume
+from .volume import BIG, CostVolume, real_bounds, real_pixels
 
 
-# ---- front: bands and the classical matching cost -------------------------------------------
+# ---- the state ------------------------------------------------------------------------------
 
-def bands(left: jax.Array, right: jax.Array, config, valid=None):
-    """(left offsets, right offsets) ``i32[H, W]`` from the coarse pass when the config is
-    banded (:mod:`stereojax.coarse`), else (None, None): the full range."""
-    if not config.banded:
-        return None, None
-    return coarse.bands(left, right, config, valid)
+@dataclass(frozen=True)
+class State:
+    """What passes between the stages of one frame (every image ``[H, W]``, padded to its size
+    bucket on the right and bottom). None: not made (yet, or not by this config).
 
+    Inputs: ``left``, ``right`` grey ``f32[H, W]``; ``valid`` ``i32[2]`` the real (rows, columns)
+    or None (nothing padded); ``limits`` ``i32[2, H, W]`` per-pixel disparity limits
+    (MIN <= d < MAX) or None; ``variables`` the network's variables and ``net`` its static
+    NetConfig (learned cost only).
+
+    Made by the stages, in order: ``offset`` / ``right_offset`` ``i32[H, W]`` the first disparity
+    of each pixel's band in the left / right view (None: full range); ``features`` the tower
+    features ``(f32[H, W, F], f32[H, W, F])``; ``ranked`` ``i32[H, W, K2]`` the candidate chain's
+    disparities, best first; ``arms`` the left image's cross arms; ``vol`` the left view's
+    :class:`CostVolume` (each stage replaces it, so the previous one can be freed);
+    ``right_vol`` ``f32[H, W, D]`` the right view's own matching cost (only where the right view
+    is aggregated on its own, ``refine.right_from_left`` off); ``disp_wta`` ``i32[H, W]`` the WTA
+    disparity; ``disp_right`` ``i32[H, W]`` the right view's; ``labels`` ``i32[H, W]`` of the
+    left-right check; ``disp`` ``f32[H, W]`` the disparity so far; ``confidence`` ``f32[H, W]``;
+    ``disparity`` ``f32[H, W]`` the result.
+    """
+
+    left: jax.Array
+    right: jax.Array
+    valid: jax.Array | None = None
+    limits: jax.Array | None = None
+    variables: Any = None
+    offset: jax.Array | None = None
+    right_offset: jax.Array | None = None
+    features: tuple | None = None
+    ranked: jax.Array | None = None
+    arms: Arms | None = None
+    vol: CostVolume | None = None
+    right_vol: jax.Array | None = None
+    disp_wta: jax.Array | None = None
+    disp_right: jax.Array | None = None
+    labels: jax.Array | None = None
+    disp: jax.Array | None = None
+    confidence: jax.Array | None = None
+    disparity: jax.Array | None = None
+    net: Any = None
+
+    def replace(self, **changes) -> "State":
+        return dataclasses.replace(self, **changes)
+
+    def real_mask(self):
+        """``bool[H, W]`` real pixels, or None when nothing is padded."""
+        return real_pixels(self.left.shape, self.valid)
+
+
+#: the State's array fields (``net`` is static)
+FIELDS = tuple(f.name for f in dataclasses.fields(State) if f.name != "net")
+jax.tree_util.register_dataclass(State, data_fields=list(FIELDS), meta_fields=["net"])
+
+
+class Stage(NamedTuple):
+    """One stage: its name (in ``bench`` and the docs), ``fn(state, config) -> state``, and
+    ``keep``: (key, field) pairs, the keys under which :func:`stereojax.pipeline.stages` keeps
+    the fields this stage makes."""
+
+    name: str
+    fn: Callable
+    keep: tuple = ()
+
+
+# ---- front: bands, tower, candidates, matching cost -----------------------------------------
 
 def limit_bands(offsets, limits, config):
     """Band offsets moved inside per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX in
@@ -52,18 +121,245 @@ def limit_bands(offsets, limits, config):
     return jnp.clip(off, 0, config.max_disp - k)
 
 
-def classic_volume(left: jax.Array, right: jax.Array, config, offsets, valid=None) -> CostVolume:
-    """The census or SAD cost of the left view in the bands ``offsets`` (None: full range)."""
-    if offsets is None:
-        return CostVolume.full(cost_mod.matching_cost(left, right, config.max_disp, config.cost, "left"), valid)
-    return cost_mod.band_cost(left, right, offsets, config.band.width, config.max_disp, config.cost, valid)
+def bands(left: jax.Array, right: jax.Array, config, valid=None):
+    """(left offsets, right offsets) ``i32[H, W]`` of a banded config: :data:`COARSE` run on the
+    pair averaged down by ``band.scale``, then :func:`stereojax.coarse.band_offsets`; (None,
+    None) for the full range."""
+    if not config.banded:
+        return None, None
+    s = config.band.scale
+    vs = None if valid is None else -(-valid // s)
+    st = State(coarse.downsample(left, s), coarse.downsample(right, s), vs)
+    st = run(COARSE, st, coarse.coarse_config(config))
+    return coarse.offsets_from(st.disp_wta, st.disp_right, config, left.shape)
 
 
-def limited_bands(left, right, config, valid=None, limits=None):
-    """:func:`bands`, the left view's moved inside the per-pixel ``limits`` (:func:`limit_bands`)."""
-    off_l, off_r = bands(left, right, config, valid)
-    return limit_bands(off_l, limits, config), off_r
+def _bands(st: State, config) -> State:
+    if not config.banded:
+        return st
+    off_l, off_r = bands(st.left, st.right, config, st.valid)
+    return st.replace(offset=limit_bands(off_l, st.limits, config), right_offset=off_r)
 
+
+def _tower(st: State, config) -> State:
+    if config.cost.method != "learned":
+        return st
+    from .learned_cost import tower_features
+
+    feats = tower_features(st.net, st.variables, st.left, st.right, st.valid)
+    return st.replace(features=jax.lax.optimization_barrier(feats))
+
+
+def pruned(config, net) -> bool:
+    """Whether the learned head runs at the candidate chain's candidates (pruned mode)."""
+    return config.cost.method == "learned" and config.cost.candidates > 0 and net is not None \
+        and net.head != "cosine"
+
+
+def _candidates(st: State, config) -> State:
+    if not pruned(config, st.net):
+        return st
+    from .learned_cost import candidate_config, rank
+
+    sub = run(CANDIDATE, st, candidate_config(config))
+    return st.replace(ranked=rank(sub.vol, config), arms=sub.arms)
+
+
+def _matching_cost(st: State, config) -> State:
+    """The left view's volume of the config's cost method in the bands (``st.offset``)."""
+    if config.cost.method == "learned":
+        from .learned_cost import learned_volume
+
+        vol = learned_volume(st.net, st.variables, st.features, st.ranked, config, st.offset, st.valid)
+        right_vol = None
+        if config.refine.lr_check and not config.refine.right_from_left:
+            # the network's right-view cost is exactly the skewed left one: C_R(x, d) = C_L(x + d, d)
+            right_vol = refine.right_cost_from_left(vol.cost, cost_mod.INVALID_COST,
+                                                    None if st.valid is None else st.valid[1])
+        return st.replace(vol=vol, right_vol=right_vol, features=None, ranked=None)
+    if st.offset is None:
+        vol = CostVolume.full(cost_mod.matching_cost(st.left, st.right, config.max_disp, config.cost, "left"),
+                              st.valid)
+    else:
+        vol = cost_mod.band_cost(st.left, st.right, st.offset, config.band.width, config.max_disp, config.cost,
+                                 st.valid)
+    return st.replace(vol=vol)
+
+
+# ---- the stages after the matching cost -----------------------------------------------------
+
+def _arms(st: State, config) -> State:
+    if st.arms is not None:     # made by the candidate chain, with the same tau and arm length
+        return st
+    return st.replace(arms=aggregation.cross_arms(st.left, config.cbca.tau, config.cbca.arm_length, st.real_mask()))
+
+
+def _neutral(st: State, config) -> State:
+    if config.cost.border != "neutral":
+        return st
+    return st.replace(vol=cost_mod.neutral_border_volume(st.vol))
+
+
+def _cbca(st: State, config, iterations: int) -> State:
+    if iterations == 0:
+        return st
+    return st.replace(vol=aggregation.cbca_volume(st.vol, st.arms, iterations, config.cbca.arm_length))
+
+
+def _cbca_before(st: State, config) -> State:
+    return _cbca(st, config, config.cbca.iterations_before)
+
+
+def _sgm(st: State, config) -> State:
+    if config.sgm.directions == 0:
+        return st
+    return st.replace(vol=sgm_volume(st.vol, st.left, st.right, config.sgm))
+
+
+def _cbca_after(st: State, config) -> State:
+    return _cbca(st, config, config.cbca.iterations_after)
+
+
+def _limits(st: State, config) -> State:
+    """Per-pixel disparity limits (``st.limits``, MIN <= d < MAX; None: none): every entry
+    outside them costs :data:`~stereojax.volume.BIG`, so WTA, the right view, the confidence and
+    the sub-pixel fit choose inside them."""
+    if st.limits is None:
+        return st
+    vol = st.vol
+    d = vol.disparities() if vol.banded else jnp.arange(vol.k, dtype=jnp.int32)[None, None, :]
+    inside = (d >= st.limits[0][..., None]) & (d < st.limits[1][..., None])
+    return st.replace(vol=vol.with_cost(jnp.where(inside, vol.cost, BIG)))
+
+
+def _wta(st: State, config) -> State:
+    disp_wta = refine.wta_volume(st.vol)
+    return st.replace(disp_wta=disp_wta, disp=disp_wta.astype(jnp.float32))
+
+
+def _right_view(st: State, config) -> State:
+    if not config.refine.lr_check:
+        return st
+    if config.refine.right_from_left:
+        right_offset = st.right_offset
+        if right_offset is None:
+            right_offset = jnp.zeros(st.vol.shape, jnp.int32)
+        return st.replace(disp_right=refine.right_wta(st.vol, right_offset, cost_mod.INVALID_COST))
+    # full range only (config.validate): the right view aggregated on its own
+    return st.replace(disp_right=refine.wta(_right_chain(st, config)), right_vol=None)
+
+
+def _right_chain(st: State, config):
+    """CBCA -> SGM -> CBCA of the right view's own full volume (``refine.right_from_left`` off)."""
+    left, right, valid = st.left, st.right, st.valid
+    vol_r = st.right_vol
+    if vol_r is None:
+        vol_r = cost_mod.matching_cost(left, right, config.max_disp, config.cost, "right")
+    w = left.shape[1]
+    arms = aggregation.cross_arms(right, config.cbca.tau, config.cbca.arm_length, real_pixels(right.shape, valid))
+    c1 = aggregation.cbca(vol_r, arms, config.cbca.iterations_before, config.cbca.arm_length)
+    # mirrored (x -> W - 1 - x turns "match at x + d" into "match at x' - d"), padding on the left
+    real = None if valid is None else (0, valid[0], w - valid[1], w)
+    c2 = sgm(c1[:, ::-1], right[:, ::-1], left[:, ::-1], config.sgm, real)[:, ::-1]
+    return aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
+
+
+def _lr_fill(st: State, config) -> State:
+    if not config.refine.lr_check:
+        return st
+    labels = refine.lr_check(st.disp, st.disp_right.astype(jnp.float32), config.max_disp,
+                             config.refine.lr_tolerance)
+    mask = st.real_mask()
+    if mask is not None:    # padding never serves as a source of the filling
+        labels = jnp.where(mask, labels, refine.MISMATCH)
+    return st.replace(labels=labels, disp=refine.fill_disparity(st.disp, labels))
+
+
+def _confidence(st: State, config) -> State:
+    return st.replace(confidence=refine.confidence_volume(st.vol, st.disp_wta, st.disp_right,
+                                                          config.refine.lr_tolerance))
+
+
+def _subpixel(st: State, config) -> State:
+    if not config.refine.subpixel:
+        return st
+    return st.replace(disp=refine.subpixel_volume(st.vol, st.disp))
+
+
+def _median(st: State, config) -> State:
+    return st.replace(disp=refine.median_filter(st.disp, config.refine.median_size))
+
+
+def _bilateral(st: State, config) -> State:
+    r = config.refine
+    disp = refine.bilateral_filter(st.disp, st.left, r.bilateral_radius, r.bilateral_sigma_space,
+                                   r.bilateral_sigma_range)
+    disp = jnp.clip(disp, 0.0, float(config.max_disp - 1))
+    if st.limits is not None:          # the filling and the filters never leave a pixel's limits
+        disp = jnp.clip(disp, st.limits[0].astype(jnp.float32), (st.limits[1] - 1).astype(jnp.float32))
+    return st.replace(disparity=disp)
+
+
+#: the chain, in order: the one place where the order is written
+STAGES: list[Stage] = [
+    Stage("coarse pass (bands)", _bands),
+    Stage("tower features", _tower),
+    Stage("candidate chain", _candidates),
+    Stage("matching cost", _matching_cost, (("cost", "vol"),)),
+    Stage("cross arms", _arms),
+    Stage("neutral out-of-view strip", _neutral),
+    Stage("CBCA before SGM", _cbca_before, (("cost_cbca", "vol"),)),
+    Stage("SGM", _sgm, (("cost_sgm", "vol"),)),
+    Stage("CBCA after SGM", _cbca_after, (("cost_final", "vol"),)),
+    Stage("per-pixel limits", _limits),
+    Stage("WTA", _wta, (("disp_wta", "disp_wta"),)),
+    Stage("right view + WTA", _right_view, (("disp_right", "disp_right"),)),
+    Stage("left-right check + filling", _lr_fill, (("labels", "labels"), ("disp_filled", "disp"))),
+    Stage("confidence", _confidence, (("confidence", "confidence"),)),
+    Stage("sub-pixel", _subpixel, (("disp_subpixel", "disp"),)),
+    Stage("median", _median, (("disp_median", "disp"),)),
+    Stage("bilateral", _bilateral, (("disparity", "disparity"),)),
+]
+
+
+def stages_named(names) -> list[Stage]:
+    """The stages of :data:`STAGES` with these names, in the chain's order (a sub-chain)."""
+    unknown = set(names) - {s.name for s in STAGES}
+    if unknown:
+        raise KeyError(f"no stage named {sorted(unknown)}")
+    return [s for s in STAGES if s.name in names]
+
+
+def _index(name: str) -> int:
+    return [s.name for s in STAGES].index(name)
+
+
+# The sub-chains, by the names of their stages; :func:`run` looks them up in :data:`STAGES` when
+# it runs, so the functions and their order come from that one list.
+#: the front of the chain: everything up to and including the matching cost
+FRONT = tuple(s.name for s in STAGES[:_index("matching cost") + 1])
+#: everything after the matching cost
+BACK = tuple(s.name for s in STAGES[_index("matching cost") + 1:])
+#: the coarse pass (:func:`bands`): census over the full range, CBCA, SGM, both views' WTA
+COARSE = ("matching cost", "cross arms", "CBCA before SGM", "SGM", "WTA", "right view + WTA")
+#: the census chain that ranks the learned head's candidates (:func:`_candidates`)
+CANDIDATE = ("matching cost", "cross arms", "CBCA before SGM", "SGM")
+
+
+def run(stages, st: State, config, kept: dict | None = None) -> State:
+    """Run ``stages`` (the names of a sub-list of :data:`STAGES`, or the list itself) on ``st``,
+    in the chain's order. ``kept``: a dict that receives what each stage's :attr:`Stage.keep`
+    names, where it exists (volumes as CostVolumes); None keeps nothing, so every volume is free
+    once the next one exists."""
+    names = [s if isinstance(s, str) else s.name for s in stages]
+    for stage in stages_named(names):
+        st = stage.fn(st, config)
+        if kept is not None:
+            kept.update({key: getattr(st, f) for key, f in stage.keep if getattr(st, f) is not None})
+    return st
+
+
+# ---- the method's models and its programs ---------------------------------------------------
 
 def model_args(config, model):
     """(variables, net) for the jitted chain, checking ``model`` against the cost method: a
@@ -84,225 +380,55 @@ def model_args(config, model):
     return None, None
 
 
-def left_volume(left, right, config, variables, net, valid=None, offset=None) -> CostVolume:
-    """The left-view matching cost of the config's method in the bands ``offset`` (None: full)."""
-    if config.cost.method == "learned":
-        from .learned_cost import learned_volume
-
-        return learned_volume(net, variables, left, right, config, valid, offset)
-    return classic_volume(left, right, config, offset, valid)
+def initial(left, right, valid=None, limits=None, variables=None, net=None) -> State:
+    """The state a frame starts with."""
+    return State(left, right, valid, limits, variables, net=net)
 
 
-def front(left, right, config, variables=None, net=None, valid=None, limits=None):
-    """(the left-view :class:`CostVolume`, the right view's band offsets or None): the coarse
-    pass's bands, moved inside the per-pixel ``limits``, and the matching cost in them."""
-    off_l, off_r = limited_bands(left, right, config, valid, limits)
-    return left_volume(left, right, config, variables, net, valid, off_l), off_r
+def split(config, net) -> int | None:
+    """Where the chain is cut into two compiled programs (an index into :data:`STAGES`), or
+    None for one program. The pruned learned cost is cut after its candidate chain, so that the
+    candidate chain's volumes are gone before the learned volume exists and the peak memory is
+    that of the larger half (measured on a KITTI frame: 3.2 GiB peak RSS instead of 4.3 as one
+    program)."""
+    return _index("candidate chain") + 1 if pruned(config, net) else None
 
 
 def two_programs(config, net) -> bool:
-    """Whether the chain runs as two compiled programs (:func:`first_program`, then
-    :func:`second_program`): the pruned learned cost does, so that the candidate chain's volumes
-    are gone before the learned volume exists and the peak memory is that of the larger half
-    (measured on a KITTI frame: 3.2 GiB peak RSS instead of 4.3 as one program)."""
-    return config.cost.method == "learned" and config.cost.candidates > 0 and net is not None \
-        and net.head != "cosine"
+    """Whether the chain runs as two compiled programs (:func:`split`)."""
+    return split(config, net) is not None
+
+
+def front(left, right, config, variables=None, net=None, valid=None, limits=None) -> State:
+    """The state after :data:`FRONT` (bands, tower, candidates, matching cost) in one program."""
+    return run(FRONT, initial(left, right, valid, limits, variables, net), config)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
-def first_program(left, right, valid, config, variables=None, net=None, limits=None):
-    """First program of a two-program chain: tower features of both views, the bands of both
-    views (the left ones inside ``limits``) and the ranked census candidates ``i32[H, W, K2]``."""
-    from .learned_cost import ranked_candidates, tower_features
-
-    fl, fr = tower_features(net, variables, left, right, valid)
-    off_l, off_r = limited_bands(left, right, config, valid, limits)
-    return fl, fr, ranked_candidates(left, right, config, off_l, valid), (off_l, off_r)
+def first_program(left, right, valid, config, variables=None, net=None, limits=None) -> State:
+    """First program of a two-program chain: :data:`STAGES` up to :func:`split` (the bands, the
+    tower features of both views and the ranked candidates); the state without the variables."""
+    st = run(STAGES[:split(config, net)], initial(left, right, valid, limits, variables, net), config)
+    return st.replace(variables=None)
 
 
-def carry_volume(carry, config, variables, net, valid=None):
-    """(the left-view CostVolume, the right view's offsets) from :func:`first_program`'s outputs:
-    the head at the candidates."""
-    from .learned_cost import band_volume
-
-    fl, fr, ranked, (off_l, off_r) = carry
-    return band_volume(net, variables, fl, fr, ranked, config, off_l, valid), off_r
+def second_front(carry: State, config, variables=None) -> State:
+    """The rest of :data:`FRONT` after :func:`first_program` (the head at the candidates)."""
+    return run(FRONT[split(config, carry.net):], carry.replace(variables=variables), config)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
-def second_program(left, right, valid, carry, config, variables=None, net=None, confidence: bool = False,
-                   limits=None):
-    """Second program of a two-program chain: the volume from ``carry`` (:func:`carry_volume`),
-    then every stage of :data:`STAGES`; the disparity (and confidence)."""
-    vol, off_r = carry_volume(carry, config, variables, net, valid)
-    return result(run(vol, off_r, left, right, config, limits=limits), confidence)
+@functools.partial(jax.jit, static_argnames=("config", "confidence"))
+def second_program(carry: State, config, variables=None, confidence: bool = False):
+    """Second program of a two-program chain: the stages of :data:`STAGES` after :func:`split`
+    on :func:`first_program`'s state; the disparity (and confidence)."""
+    st = run(STAGES[split(config, carry.net):], carry.replace(variables=variables), config)
+    return result(st, confidence)
 
 
-def result(out: dict, confidence: bool):
-    """The disparity of :func:`run`'s output, or (disparity, confidence) when asked for."""
-    return (out["disparity"], out["confidence"]) if confidence else out["disparity"]
+def result(st: State, confidence: bool):
+    """The disparity of a finished state, or (disparity, confidence) when asked for."""
+    return (st.disparity, st.confidence) if confidence else st.disparity
 
 
-# ---- the stages after the matching cost -----------------------------------------------------
-
-def _arms(st, config):
-    mask = real_pixels(st["left"].shape, st["vol"].valid)
-    st["arms"] = aggregation.cross_arms(st["left"], config.cbca.tau, config.cbca.arm_length, mask)
-    return st
-
-
-def _neutral(st, config):
-    if config.cost.border == "neutral":
-        st["vol"] = cost_mod.neutral_border_volume(st["vol"])
-    return st
-
-
-def _cbca(st, config, iterations: int, key: str):
-    st["vol"] = st[key] = aggregation.cbca_volume(st["vol"], st["arms"], iterations, config.cbca.arm_length)
-    return st
-
-
-def _cbca_before(st, config):
-    return _cbca(st, config, config.cbca.iterations_before, "cost_cbca")
-
-
-def _sgm(st, config):
-    st["vol"] = st["cost_sgm"] = sgm_volume(st["vol"], st["left"], st["right"], config.sgm)
-    return st
-
-
-def _cbca_after(st, config):
-    return _cbca(st, config, config.cbca.iterations_after, "cost_final")
-
-
-def _limits(st, config):
-    """Per-pixel disparity limits (``st["limits"]`` ``i32[2, H, W]``, MIN <= d < MAX; absent:
-    none): every entry outside them costs :data:`~stereojax.volume.OUT_OF_BAND`, so WTA, the
-    right view, the confidence and the sub-pixel fit choose inside them."""
-    limits = st.get("limits")
-    if limits is None:
-        return st
-    vol = st["vol"]
-    d = vol.disparities() if vol.banded else jnp.arange(vol.k, dtype=jnp.int32)[None, None, :]
-    inside = (d >= limits[0][..., None]) & (d < limits[1][..., None])
-    st["vol"] = vol.with_cost(jnp.where(inside, vol.cost, OUT_OF_BAND))
-    return st
-
-
-def _wta(st, config):
-    st["disp_wta"] = refine.wta_volume(st["vol"])
-    st["disp"] = st["disp_wta"].astype(jnp.float32)
-    return st
-
-
-def _right_view(st, config):
-    if not config.refine.lr_check:
-        return st
-    vol = st["vol"]
-    if config.refine.right_from_left:
-        st["disp_right"] = refine.right_wta(vol, st["right_offset"], cost_mod.INVALID_COST)
-    else:                      # full range only (config.validate): the right view aggregated on its own
-        st["disp_right"] = refine.wta(_right_chain(st, config))
-    return st
-
-
-def _right_chain(st, config):
-    """CBCA -> SGM -> CBCA of the right view's own full volume (``refine.right_from_left`` off)."""
-    left, right, valid = st["left"], st["right"], st["vol"].valid
-    d = config.max_disp
-    if config.cost.method == "learned":
-        # the network's right-view cost is exactly the skewed left one: C_R(x, d) = C_L(x + d, d)
-        vol_r = refine.right_cost_from_left(st["cost"].cost, cost_mod.INVALID_COST,
-                                            None if valid is None else valid[1])
-    else:
-        vol_r = cost_mod.matching_cost(left, right, d, config.cost, "right")
-    w = left.shape[1]
-    arms = aggregation.cross_arms(right, config.cbca.tau, config.cbca.arm_length, real_pixels(right.shape, valid))
-    c1 = aggregation.cbca(vol_r, arms, config.cbca.iterations_before, config.cbca.arm_length)
-    # mirrored (x -> W - 1 - x turns "match at x + d" into "match at x' - d"), padding on the left
-    real = None if valid is None else (0, valid[0], w - valid[1], w)
-    c2 = sgm(c1[:, ::-1], right[:, ::-1], left[:, ::-1], config.sgm, real)[:, ::-1]
-    return aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
-
-
-def _lr_fill(st, config):
-    if not config.refine.lr_check:
-        return st
-    labels = refine.lr_check(st["disp"], st["disp_right"].astype(jnp.float32), config.max_disp,
-                             config.refine.lr_tolerance)
-    mask = st["vol"].real_mask()
-    if mask is not None:    # padding never serves as a source of the filling
-        labels = jnp.where(mask, labels, refine.MISMATCH)
-    st["labels"] = labels
-    st["disp"] = st["disp_filled"] = refine.fill_disparity(st["disp"], labels)
-    return st
-
-
-def _confidence(st, config):
-    st["confidence"] = refine.confidence_volume(st["vol"], st["disp_wta"], st.get("disp_right"),
-                                                config.refine.lr_tolerance)
-    return st
-
-
-def _subpixel(st, config):
-    if config.refine.subpixel:
-        st["disp"] = st["disp_subpixel"] = refine.subpixel_volume(st["vol"], st["disp"])
-    return st
-
-
-def _median(st, config):
-    st["disp"] = st["disp_median"] = refine.median_filter(st["disp"], config.refine.median_size)
-    return st
-
-
-def _bilateral(st, config):
-    r = config.refine
-    disp = refine.bilateral_filter(st["disp"], st["left"], r.bilateral_radius, r.bilateral_sigma_space,
-                                   r.bilateral_sigma_range)
-    st["disparity"] = jnp.clip(disp, 0.0, float(config.max_disp - 1))
-    limits = st.get("limits")
-    if limits is not None:          # the filling and the filters never leave a pixel's limits
-        st["disparity"] = jnp.clip(st["disparity"], limits[0].astype(jnp.float32),
-                                   (limits[1] - 1).astype(jnp.float32))
-    return st
-
-
-#: the stages after the matching cost, in order: (name, stage(state, config) -> state)
-STAGES: list[tuple[str, Callable]] = [
-    ("cross arms", _arms),
-    ("neutral out-of-view strip", _neutral),
-    ("CBCA before SGM", _cbca_before),
-    ("SGM", _sgm),
-    ("CBCA after SGM", _cbca_after),
-    ("per-pixel limits", _limits),
-    ("WTA", _wta),
-    ("right view + WTA", _right_view),
-    ("left-right check + filling", _lr_fill),
-    ("confidence", _confidence),
-    ("sub-pixel", _subpixel),
-    ("median", _median),
-    ("bilateral", _bilateral),
-]
-
-#: state entries :func:`run` returns when asked to keep every intermediate result
-KEPT = ("cost", "cost_cbca", "cost_sgm", "cost_final", "disp_wta", "disp_right", "labels",
-        "disp_filled", "disp_subpixel", "disp_median", "confidence", "disparity")
-
-
-def initial_state(vol: CostVolume, right_offset, left, right, limits=None) -> dict:
-    if right_offset is None:
-        right_offset = jnp.zeros(vol.shape, jnp.int32)
-    return {"vol": vol, "cost": vol, "right_offset": right_offset, "left": left, "right": right,
-            "limits": limits}
-
-
-def run(vol: CostVolume, right_offset, left, right, config, keep: bool = False, limits=None) -> dict:
-    """Every stage of :data:`STAGES` on the left-view volume; returns ``disparity``,
-    ``confidence`` and ``disp_wta`` (``keep``: every entry of :data:`KEPT`, volumes as
-    CostVolumes). ``limits``: per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX, in
-    the chain's disparities), or None."""
-    st = initial_state(vol, right_offset, left, right, limits)
-    for _, stage in STAGES:
-        st = stage(st, config)
-    names = KEPT if keep else ("disp_wta", "confidence", "disparity")
-    return {k: st[k] for k in names if k in st}
+__all__ = ["State", "Stage", "STAGES", "FRONT", "BACK", "COARSE", "CANDIDATE", "run", "bands", "front",
+           "split", "first_program", "second_program", "model_args", "limit_bands", "real_bounds"]

@@ -14,6 +14,9 @@ then gets a band of ``K = band.width`` disparities:
 
 The right view's bands follow the same rule from the coarse right disparities (its own
 left-right agreement deciding "unsure"). Returns ``i32[H, W]`` offsets for both views.
+
+The pass itself is the sub-chain :data:`stereojax.chain.COARSE` of the chain's own stages
+(:func:`stereojax.chain.bands` runs it); this module holds its config and the band rule.
 """
 
 from __future__ import annotations
@@ -23,8 +26,6 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from . import aggregation, cost as cost_mod, refine
-from .sgm import sgm
 
 
 def downsample(grey: jax.Array, scale: int) -> jax.Array:
@@ -64,45 +65,34 @@ def band_offsets(disp: jax.Array, sure: jax.Array, band, max_disp: int, shape) -
 
 
 def coarse_config(config):
-    """The coarse pass's chain: census with the chain's census window, the chain's cross arms
-    (arm length divided by the scale, at least 1), one CBCA pass, SGM with ``band.p1/p2``."""
+    """The coarse pass's chain (:data:`stereojax.chain.COARSE`, run at 1/``band.scale``): census
+    with the chain's census window over the full range ``ceil(D / scale)``, the chain's cross arms
+    (arm length divided by the scale, at least 1), one CBCA pass, SGM with ``band.p1/p2``, and
+    both views' WTA."""
     b = config.band
     return dataclasses.replace(
-        config,
-        cbca=dataclasses.replace(config.cbca, arm_length=max(1, config.cbca.arm_length // b.scale)),
-        sgm=dataclasses.replace(config.sgm, p1=b.p1, p2=b.p2))
+        config, max_disp=-(-config.max_disp // b.scale),
+        cost=dataclasses.replace(config.cost, method="census", border="replicate", candidates=0),
+        cbca=dataclasses.replace(config.cbca, arm_length=max(1, config.cbca.arm_length // b.scale),
+                                 iterations_before=1, iterations_after=0),
+        sgm=dataclasses.replace(config.sgm, p1=b.p1, p2=b.p2),
+        band=dataclasses.replace(b, width=0),
+        refine=dataclasses.replace(config.refine, lr_check=True, right_from_left=True))
 
 
-def coarse_disparities(left: jax.Array, right: jax.Array, config, valid=None):
-    """(left, right coarse WTA disparities ``i32[h, w]``, left sure, right sure ``bool[h, w]``)
-    at 1/scale resolution over the full range (coarse disparities in coarse pixels)."""
-    from .compile_cache import real_pixels
-
-    b = config.band
-    c = coarse_config(config)
-    s = b.scale
-    sl, sr = downsample(left, s), downsample(right, s)
-    h, w = sl.shape
-    dc = -(-config.max_disp // s)
-    vs = None if valid is None else -(-valid // s)
-    vol = cost_mod.census_cost(sl, sr, dc, config.cost.census_radius)
-    arms = aggregation.cross_arms(sl, c.cbca.tau, c.cbca.arm_length, real_pixels((h, w), vs))
-    vol = aggregation.cbca(vol, arms, 1, c.cbca.arm_length)
-    vol = sgm(vol, sl, sr, c.sgm, None if vs is None else (0, vs[0], 0, vs[1]))
-    dl = refine.wta(vol)
-    dr = refine.wta(refine.right_cost_from_left(vol, cost_mod.INVALID_COST, None if vs is None else vs[1]))
+def sure(dl: jax.Array, dr: jax.Array):
+    """(left sure, right sure) ``bool[h, w]``: where the coarse WTA disparities of the two views
+    (``i32[h, w]``, in coarse pixels) agree within 1 and the match lies inside the other image."""
+    w = dl.shape[1]
     x = jnp.arange(w)[None, :]
     dr_at_l = jnp.take_along_axis(dr, jnp.clip(x - dl, 0, w - 1), axis=1)
     dl_at_r = jnp.take_along_axis(dl, jnp.clip(x + dr, 0, w - 1), axis=1)
-    sure_l = (jnp.abs(dl - dr_at_l) <= 1) & (x - dl >= 0)
-    sure_r = (jnp.abs(dr - dl_at_r) <= 1) & (x + dr < w)
-    return dl, dr, sure_l, sure_r
+    return (jnp.abs(dl - dr_at_l) <= 1) & (x - dl >= 0), (jnp.abs(dr - dl_at_r) <= 1) & (x + dr < w)
 
 
-def bands(left: jax.Array, right: jax.Array, config, valid=None):
-    """(left offsets, right offsets), each ``i32[H, W]``: the band of every pixel of each view
-    (module docstring). ``config.band.width`` must be below ``config.max_disp``."""
-    dl, dr, sure_l, sure_r = coarse_disparities(left, right, config, valid)
-    shape = left.shape
+def offsets_from(dl: jax.Array, dr: jax.Array, config, shape):
+    """(left offsets, right offsets), each ``i32[H, W]`` at full resolution ``shape``: the band of
+    every pixel of each view (module docstring) from the coarse pass's WTA disparities."""
+    sure_l, sure_r = sure(dl, dr)
     return (band_offsets(dl, sure_l, config.band, config.max_disp, shape),
             band_offsets(dr, sure_r, config.band, config.max_disp, shape))

@@ -180,17 +180,6 @@ def _healing_cache_class(base, cc):
     return _HealingCache
 
 
-def real_pixels(shape, valid):
-    """``bool[H, W]``: the real pixels (rows < valid[0], columns < valid[1]) of a pair padded to
-    its bucket, ``valid`` a traced ``i32[2]``; None when ``valid`` is None (nothing padded)."""
-    import jax.numpy as jnp
-
-    if valid is None:
-        return None
-    h, w = shape
-    return (jnp.arange(h)[:, None] < valid[0]) & (jnp.arange(w)[None, :] < valid[1])
-
-
 def bucket_shape(height: int, width: int, bucket_h: int = BUCKET_H, bucket_w: int = BUCKET_W) -> tuple[int, int]:
     """(H, W) rounded up to the size bucket: the shape the chain is compiled for."""
     return -(-height // bucket_h) * bucket_h, -(-width // bucket_w) * bucket_w

@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .compile_cache import real_pixels
+from .volume import CostVolume, real_pixels
 from .nets import MatchNet, NetConfig
 
 
@@ -142,30 +142,18 @@ def head_at_pixels(model, variables, fl, fr, ys, xs, cand, chunk: int = 2048) ->
 
 
 def candidate_config(config):
-    """The census chain that proposes the learned head's candidates, from the learned chain's
-    own config: census window ``cost.census_radius``, cross arms of ``cbca``, its
-    ``cost.candidate_cbca`` passes, and ``sgm`` with ``cost.candidate_p1`` / ``candidate_p2``
-    (penalties on the census cost scale)."""
+    """The census chain that proposes the learned head's candidates
+    (:data:`stereojax.chain.CANDIDATE`), from the learned chain's own config: census window
+    ``cost.census_radius`` in the chain's bands, cross arms of ``cbca`` (the same arms as the
+    chain's, so they are made once), its ``cost.candidate_cbca`` passes, and ``sgm`` with
+    ``cost.candidate_p1`` / ``candidate_p2`` (penalties on the census cost scale)."""
     import dataclasses
 
     c = config.cost
     return dataclasses.replace(
-        config, cost=dataclasses.replace(c, method="census", candidates=0),
+        config, cost=dataclasses.replace(c, method="census", border="replicate", candidates=0),
         cbca=dataclasses.replace(config.cbca, iterations_before=c.candidate_cbca, iterations_after=0),
         sgm=dataclasses.replace(config.sgm, p1=c.candidate_p1, p2=c.candidate_p2))
-
-
-def candidate_volume(left: jax.Array, right: jax.Array, config, valid=None) -> jax.Array:
-    """``f32[H, W, D]``: census + CBCA + SGM cost of :func:`candidate_config` (lower is better).
-    valid: ``i32[2]`` real (rows, columns) of a pair padded to its size bucket."""
-    from . import aggregation, cost as cost_mod
-    from .sgm import sgm
-
-    c = candidate_config(config)
-    vol = cost_mod.census_cost(left, right, c.max_disp, c.cost.census_radius)
-    arms = aggregation.cross_arms(left, c.cbca.tau, c.cbca.arm_length, real_pixels(left.shape, valid))
-    vol = aggregation.cbca(vol, arms, c.cbca.iterations_before, c.cbca.arm_length)
-    return sgm(vol, left, right, c.sgm, None if valid is None else (0, valid[0], 0, valid[1]))
 
 
 def _ks(config) -> tuple[int, int]:
@@ -238,38 +226,17 @@ def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, conf
     return vol.at[ys[:, None], xs[:, None], idx].set(more_cost, mode="drop")
 
 
-def candidate_band(left: jax.Array, right: jax.Array, config, offset, valid=None):
-    """The census candidate chain of :func:`candidate_config` in the bands ``offset`` ``i32[H, W]``:
-    a :class:`~stereojax.volume.CostVolume` (census, CBCA, SGM; lower is better)."""
-    from . import aggregation, cost as cost_mod
-    from .sgm import sgm_volume
-
-    c = candidate_config(config)
-    vol = cost_mod.census_band(left, right, offset, config.band.width, c.max_disp, c.cost.census_radius,
-                               valid=valid)
-    arms = aggregation.cross_arms(left, c.cbca.tau, c.cbca.arm_length, real_pixels(left.shape, valid))
-    vol = aggregation.cbca_volume(vol, arms, c.cbca.iterations_before, c.cbca.arm_length)
-    return sgm_volume(vol, left, right, c.sgm)
-
-
-def rank_band(cand, config) -> jax.Array:
-    """``i32[H, W, K2]``: the absolute disparities of lowest cost in a candidate CostVolume."""
-    return (jax.lax.top_k(-cand.cost, _ks(config)[1])[1] + cand.offset[..., None]).astype(jnp.int32)
-
-
-def ranked_candidates(left, right, config, offset=None, valid=None) -> jax.Array:
-    """The ranked candidates ``i32[H, W, K2]`` (absolute disparities) of the census candidate
-    chain: over the full range, or in the bands ``offset``."""
-    if offset is None:
-        return rank_candidates(candidate_volume(left, right, config, valid), config)
-    return rank_band(candidate_band(left, right, config, offset, valid), config)
+def rank(vol: CostVolume, config) -> jax.Array:
+    """``i32[H, W, K2]``: the absolute disparities of lowest cost in the candidate chain's
+    CostVolume, best first (full range: :func:`rank_candidates`)."""
+    if not vol.banded:
+        return rank_candidates(vol.cost, config)
+    return (jax.lax.top_k(-vol.cost, _ks(config)[1])[1] + vol.offset[..., None]).astype(jnp.int32)
 
 
 def band_volume(net: NetConfig, variables, fl, fr, ranked, config, offset=None, valid=None):
     """The learned :class:`~stereojax.volume.CostVolume` from tower features and ranked
     candidates (pruned mode), in the bands ``offset`` (None: full range)."""
-    from .volume import CostVolume
-
     cost = ranked_dense_cost(net, variables, fl, fr, ranked, config, valid=valid, offset=offset)
     if offset is None:
         return CostVolume.full(cost, valid)
@@ -298,35 +265,30 @@ def tower_features(net: NetConfig, variables, left: jax.Array, right: jax.Array,
     return f[0], f[1]
 
 
-def learned_volume(net: NetConfig, variables, left: jax.Array, right: jax.Array, config, valid=None,
-                   offset=None):
-    """Left-view :class:`~stereojax.volume.CostVolume` of grey images (0..255) ``f32[H, W]`` for
-    the chain ``config`` (a StereoConfig with ``cost.method == "learned"``), over the full range
-    or in the bands ``offset`` ``i32[H, W]`` (:mod:`stereojax.coarse`).
+def learned_volume(net: NetConfig, variables, features, ranked, config, offset=None, valid=None) -> CostVolume:
+    """Left-view :class:`~stereojax.volume.CostVolume` of the chain ``config`` (a StereoConfig
+    with ``cost.method == "learned"``) from the tower features ``(f32[H, W, F], f32[H, W, F])``
+    (:func:`tower_features`), over the full range or in the bands ``offset`` ``i32[H, W]``.
 
-    ``config.cost.candidates``: 0 = exact (every disparity of the band through the head); K > 0
-    = pruned mode: the head runs on the K best disparities of the census candidate chain, and on
+    ``config.cost.candidates``: 0 = exact (every disparity of the band through the head; cosine
+    head: full range only); K > 0 = pruned mode: the head runs at ``ranked`` ``i32[H, W, K2]``,
+    the candidate chain's disparities (:data:`stereojax.chain.CANDIDATE`, :func:`rank`), and on
     ``cost.unsure_candidates`` for the ``cost.unsure_share`` of the pixels where it is least
     sure (:func:`adaptive_dense_cost`).
     """
-    from .volume import CostVolume
-
-    c = config.cost
+    fl, fr = features
     d = config.max_disp
-    fl, fr = jax.lax.optimization_barrier(tower_features(net, variables, left, right, valid))
+    if ranked is not None:
+        return band_volume(net, variables, fl, fr, ranked, config, offset, valid)
     if offset is None:
         if net.head == "cosine":
             return CostVolume.full(cosine_cost(fl, fr, d), valid)
-        if not c.candidates:
-            return CostVolume.full(dense_cost(net, variables, fl, fr, d, c.rows_per_tile), valid)
-    elif net.head == "cosine" or not c.candidates:
-        if net.head == "cosine":
-            raise ValueError("the cosine head runs over the full range only (set band.width = 0)")
-        disp = offset[..., None] + jnp.arange(config.band.width, dtype=jnp.int32)
-        cost = head_at(MatchNet(net), variables, fl, fr, disp, c.rows_per_tile)
-        return CostVolume.band(cost, offset, d, valid)
-    ranked = ranked_candidates(left, right, config, offset, valid)
-    return band_volume(net, variables, fl, fr, ranked, config, offset, valid)
+        return CostVolume.full(dense_cost(net, variables, fl, fr, d, config.cost.rows_per_tile), valid)
+    if net.head == "cosine":
+        raise ValueError("the cosine head runs over the full range only (set band.width = 0)")
+    disp = offset[..., None] + jnp.arange(config.band.width, dtype=jnp.int32)
+    cost = head_at(MatchNet(net), variables, fl, fr, disp, config.cost.rows_per_tile)
+    return CostVolume.band(cost, offset, d, valid)
 
 
 @functools.partial(jax.jit, static_argnames=("net", "max_disp", "rows_per_tile", "candidates"))
@@ -336,10 +298,11 @@ def learned_cost(net: NetConfig, variables, left: jax.Array, right: jax.Array, m
 
     candidates: 0 = exact (every disparity through the head); K > 0 = pruned mode, the dense
     head only on the K best disparities of the census chain of the default settings. The
-    chain itself uses :func:`learned_volume`, which takes every setting from its config.
+    chain itself runs :data:`stereojax.chain.FRONT`, which takes every setting from its config.
     """
+    from .chain import front
     from .config import CostConfig, StereoConfig
 
     cfg = StereoConfig(max_disp=max_disp, cost=CostConfig(method="learned", rows_per_tile=rows_per_tile,
                                                           candidates=candidates))
-    return learned_volume(net, variables, left, right, cfg).cost
+    return front(left, right, cfg, variables, net).vol.cost

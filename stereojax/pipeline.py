@@ -140,18 +140,22 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=No
 
 
 def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, variables=None, net=None,
-           keep: bool = True, valid=None, limits=None) -> dict[str, jax.Array]:
-    vol, off_r = chain_mod.front(left, right, config, variables, net, valid, limits)
-    return chain_mod.run(vol, off_r, left, right, config, keep, limits)
+           kept: dict | None = None, valid=None, limits=None) -> chain_mod.State:
+    """Every stage of :data:`stereojax.chain.STAGES` in one program; ``kept``: see
+    :func:`stereojax.chain.run`."""
+    st = chain_mod.initial(left, right, valid, limits, variables, net)
+    return chain_mod.run(chain_mod.STAGES, st, config, kept)
 
 
 def chain_from_volume(vol, left: jax.Array, right: jax.Array, config: StereoConfig,
-                      keep: bool = False, valid=None, right_offset=None) -> dict[str, jax.Array]:
-    """Everything after the matching cost (:data:`stereojax.chain.STAGES`) on the left-view
+                      valid=None, right_offset=None, kept: dict | None = None) -> chain_mod.State:
+    """Everything after the matching cost (:data:`stereojax.chain.BACK`) on the left-view
     volume: a :class:`~stereojax.volume.CostVolume`, or a full ``f32[H, W, D]`` array."""
     if not isinstance(vol, CostVolume):
         vol = CostVolume.full(vol, valid)
-    return chain_mod.run(vol, right_offset, left, right, config, keep)
+    st = chain_mod.State(left, right, vol.valid, vol=vol, offset=vol.offset if vol.banded else None,
+                         right_offset=right_offset)
+    return chain_mod.run(chain_mod.BACK, st, config, kept)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
@@ -162,7 +166,7 @@ def disparity_grey(left: jax.Array, right: jax.Array, config: StereoConfig, vari
     variables, net: the matching network's variables and (static) NetConfig when
     ``config.cost.method == "learned"``; None otherwise.
     """
-    return _chain(left, right, config, variables, net, keep=False)["disparity"]
+    return _chain(left, right, config, variables, net).disparity
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
@@ -175,18 +179,20 @@ def disparity_padded(left: jax.Array, right: jax.Array, valid: jax.Array, config
     confidence: also return the confidence map (:func:`stereojax.refine.confidence`).
     limits: per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX, chain disparities) or None.
     """
-    return chain_mod.result(_chain(left, right, config, variables, net, keep=False, valid=valid, limits=limits), confidence)
+    return chain_mod.result(_chain(left, right, config, variables, net, valid=valid, limits=limits), confidence)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
 def _volume_padded(left, right, valid, config: StereoConfig, variables=None, net=None):
-    """(the left-view CostVolume, the right view's band offsets or None) of a padded pair, made
-    as the chain makes it (in two programs where the method runs as two:
-    :func:`stereojax.chain.two_programs`)."""
+    """(the left-view CostVolume, the right view's band offsets or None) of a padded pair: the
+    chain's :data:`~stereojax.chain.FRONT`, cut where the chain cuts it
+    (:func:`stereojax.chain.split`)."""
     if not chain_mod.two_programs(config, net):
-        return chain_mod.front(left, right, config, variables, net, valid)
-    carry = chain_mod.first_program(left, right, valid, config, variables, net)
-    return chain_mod.carry_volume(carry, config, variables, net, valid)
+        st = chain_mod.front(left, right, config, variables, net, valid)
+    else:
+        st = chain_mod.second_front(chain_mod.first_program(left, right, valid, config, variables, net),
+                                    config, variables)
+    return st.vol, st.right_offset
 
 
 @functools.partial(jax.jit, static_argnames=("config", "confidence"))
@@ -194,7 +200,7 @@ def disparity_from_volume(vol, right_offset, left, right, config: StereoConfig, 
     """Everything after the matching cost (:func:`chain_from_volume`) on a padded pair's
     CostVolume; the disparity ``f32[H, W]`` of the bucket (crop it to ``vol.valid``), and its
     confidence when asked."""
-    return chain_mod.result(chain_mod.run(vol, right_offset, left, right, config), confidence)
+    return chain_mod.result(chain_from_volume(vol, left, right, config, right_offset=right_offset), confidence)
 
 
 @dataclass(frozen=True)
@@ -254,8 +260,7 @@ class CompiledChain:
             if sharding is not None:
                 carry = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding),
                                                carry)
-            self._second = chain_mod.second_program.lower(spec, spec, valid, carry, config, var_spec, net,
-                                                          confidence, lim).compile()
+            self._second = chain_mod.second_program.lower(carry, config, var_spec, confidence).compile()
         else:
             self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net, confidence,
                                                     lim).compile()
@@ -279,7 +284,7 @@ class CompiledChain:
             lim[:, :h, :w] = limits
             lim = jax.device_put(lim, self.device)
         if self._two:
-            out = self._second(lp, rp, valid, self._first(lp, rp, valid, variables, lim), variables, lim)
+            out = self._second(self._first(lp, rp, valid, variables, lim), variables)
         else:
             out = self._compiled(lp, rp, valid, variables, lim)
         if self.confidence:
@@ -548,7 +553,9 @@ class Predictor:
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
 def _stages_grey(left, right, config, variables=None, net=None):
-    return _as_arrays(_chain(left, right, config, variables, net, keep=True))
+    kept = {}
+    _chain(left, right, config, variables, net, kept)
+    return _as_arrays(kept)
 
 
 def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None,

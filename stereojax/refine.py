@@ -9,7 +9,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .volume import OUT_OF_BAND
+from .volume import BIG
 
 # labels of the left-right check
 CORRECT, MISMATCH, OCCLUSION = 0, 1, 2
@@ -79,15 +79,12 @@ def lr_check(disp_left: jax.Array, disp_right: jax.Array, max_disp: int,
     dr = jnp.take_along_axis(disp_right, jnp.clip(xr, 0, w - 1), axis=1)
     correct = (xr >= 0) & (jnp.abs(disp_left - dr) <= tolerance)
 
-    # padded[y, max_disp + x] = D_R(y, x); -1 left of the image never equals a disparity
-    padded = jnp.pad(jnp.round(disp_right).astype(jnp.int32), ((0, 0), (max_disp, 0)),
-                     constant_values=-1)
-
-    def body(dp, seen):
-        val = jax.lax.dynamic_slice_in_dim(padded, max_disp - dp, w, axis=1)   # D_R(x - dp)
-        return seen | (val == dp)
-
-    seen = jax.lax.fori_loop(0, max_disp, body, jnp.zeros((h, w), jnp.bool_))
+    # "some d' has D_R(x - d') == d'" is "some right pixel x' = x - d' lands on x = x' + D_R(x')":
+    # one scatter of the right pixels onto their left matches instead of a loop over the range
+    r = jnp.round(disp_right).astype(jnp.int32)
+    target = jnp.where((r >= 0) & (r < max_disp), x + r, w)                   # w: dropped
+    rows = jnp.broadcast_to(jnp.arange(h)[:, None], (h, w))
+    seen = jnp.zeros((h, w), jnp.bool_).at[rows, target].set(True, mode="drop")
     return jnp.where(correct, CORRECT, jnp.where(seen, MISMATCH, OCCLUSION)).astype(jnp.int32)
 
 
@@ -148,7 +145,7 @@ def fill_disparity(disp: jax.Array, labels: jax.Array) -> jax.Array:
     cands = jnp.stack([left_v, right_v, up_v, down_v] + [v for v, _ in diag])
     oks = jnp.stack([left_ok, right_ok, up_ok, down_ok] + [o for _, o in diag])
     # median over the available candidates: sort with missing ones pushed to +inf
-    big = jnp.float32(1e9)
+    big = jnp.float32(BIG)
     srt = jnp.sort(jnp.where(oks, cands, big), axis=0)
     n = oks.sum(0)
     lo = jnp.take_along_axis(srt, jnp.clip((n - 1) // 2, 0, 7)[None], axis=0)[0]
@@ -162,7 +159,7 @@ def subpixel(cost: jax.Array, disp: jax.Array) -> jax.Array:
     """Parabola fit through the costs at d - 1, d, d + 1 around integer ``disp``; ``f32[H, W]``.
 
     d_sub = d - (C+ - C-) / (2 (C+ - 2 C + C-)), applied where 0 < d < D - 1, neither
-    neighbour lies outside the pixel's limits (:data:`~stereojax.volume.OUT_OF_BAND`) and the
+    neighbour lies outside the pixel's limits (:data:`~stereojax.volume.BIG`) and the
     parabola opens upwards; the offset is clamped to [-0.5, 0.5].
     """
     max_disp = cost.shape[-1]
@@ -171,7 +168,7 @@ def subpixel(cost: jax.Array, disp: jax.Array) -> jax.Array:
     cm = jnp.take_along_axis(cost, jnp.clip(d - 1, 0, max_disp - 1)[..., None], axis=-1)[..., 0]
     cp = jnp.take_along_axis(cost, jnp.clip(d + 1, 0, max_disp - 1)[..., None], axis=-1)[..., 0]
     denom = cp - 2.0 * c0 + cm
-    ok = (d > 0) & (d < max_disp - 1) & (denom > 1e-12) & (jnp.maximum(cm, cp) < 0.5 * OUT_OF_BAND)
+    ok = (d > 0) & (d < max_disp - 1) & (denom > 1e-12) & (jnp.maximum(cm, cp) < 0.5 * BIG)
     offset = jnp.clip((cp - cm) / (2.0 * jnp.where(ok, denom, 1.0)), -0.5, 0.5)
     return d.astype(jnp.float32) - jnp.where(ok, offset, 0.0)
 
@@ -238,7 +235,7 @@ def right_wta(vol, right_offset, invalid: float = 1.0) -> jax.Array:
     C_R(x, d) = C_L(x + d, d), for d in the right view's band ``[right_offset, right_offset + K)``
     (full range: :func:`right_cost_from_left`). Entries with x + d beyond the real width get
     ``invalid``, as in the full range; entries where d lies outside the left pixel's band get
-    :data:`~stereojax.volume.OUT_OF_BAND`."""
+    :data:`~stereojax.volume.BIG`."""
     vw = None if vol.valid is None else vol.valid[1]
     if not vol.banded:
         return wta(right_cost_from_left(vol.cost, invalid, vw))
@@ -253,7 +250,7 @@ def right_wta(vol, right_offset, invalid: float = 1.0) -> jax.Array:
     in_band = (j >= 0) & (j < k)
     flat = (xl * k + jnp.clip(j, 0, k - 1)).reshape(h, -1)
     c = jnp.take_along_axis(vol.cost.reshape(h, w * k), flat, axis=1).reshape(h, w, k)
-    c = jnp.where(in_image, jnp.where(in_band, c, OUT_OF_BAND), invalid)
+    c = jnp.where(in_image, jnp.where(in_band, c, BIG), invalid)
     return wta(c) + right_offset
 
 
@@ -269,7 +266,7 @@ def subpixel_volume(vol, disp: jax.Array) -> jax.Array:
     take = lambda i: jnp.take_along_axis(vol.cost, jnp.clip(i, 0, k - 1)[..., None], axis=-1)[..., 0]
     c0, cm, cp = take(j), take(j - 1), take(j + 1)
     denom = cp - 2.0 * c0 + cm
-    ok = (j > 0) & (j < k - 1) & (denom > 1e-12) & (jnp.maximum(cm, cp) < 0.5 * OUT_OF_BAND)
+    ok = (j > 0) & (j < k - 1) & (denom > 1e-12) & (jnp.maximum(cm, cp) < 0.5 * BIG)
     offset = jnp.clip((cp - cm) / (2.0 * jnp.where(ok, denom, 1.0)), -0.5, 0.5)
     return d.astype(jnp.float32) - jnp.where(ok, offset, 0.0)
 

@@ -24,9 +24,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .volume import windows
-
-_BIG = 1e9   # finite stand-in for +inf outside the disparity range
+from .volume import BIG as _BIG, real_bounds, windows
 
 
 def _path_step(prev: jax.Array, c: jax.Array, p1, p2) -> jax.Array:
@@ -303,7 +301,7 @@ def sgm_volume(vol, left: jax.Array, right: jax.Array, cfg):
     """
     if cfg.directions == 0:
         return vol
-    real = None if vol.valid is None else (0, vol.valid[0], 0, vol.valid[1])
+    real = real_bounds(vol.valid)
     if not vol.banded:
         return vol.with_cost(sgm(vol.cost, left, right, cfg, real))
     thr = cfg.grad_threshold

@@ -24,9 +24,27 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-#: cost of an entry outside a band where a stage must read one (SGM's predecessor, the right
-#: view): larger than any real cost, finite so that sums stay finite
-OUT_OF_BAND = 1e9
+#: the one sentinel of the chain: the cost of an entry outside a band or a pixel's limits where a
+#: stage must read one (SGM's predecessor, the right view, WTA), and the grey value that keeps the
+#: padding out of every cross arm; larger than any real cost or grey value, finite so that sums
+#: stay finite (never NaN or inf)
+BIG = 1e9
+
+
+def real_pixels(shape, valid):
+    """``bool[H, W]``: the real pixels (rows < valid[0], columns < valid[1]) of a pair padded on
+    the right and bottom to its size bucket, ``valid`` a traced ``i32[2]``; None when ``valid``
+    is None (nothing padded). With :func:`real_bounds`, the one spelling of the padding."""
+    if valid is None:
+        return None
+    h, w = shape
+    return (jnp.arange(h)[:, None] < valid[0]) & (jnp.arange(w)[None, :] < valid[1])
+
+
+def real_bounds(valid):
+    """(first row, end row, first column, end column) of the real pixels (see
+    :func:`real_pixels`), or None when nothing is padded: the form the path loops of SGM take."""
+    return None if valid is None else (0, valid[0], 0, valid[1])
 
 
 @dataclass(frozen=True)
@@ -65,11 +83,9 @@ class CostVolume:
 
     def real_mask(self):
         """``bool[H, W]`` real pixels, or None when nothing is padded."""
-        from .compile_cache import real_pixels
-
         return real_pixels(self.shape, self.valid)
 
-    def at(self, disp: jax.Array, fill: float = OUT_OF_BAND) -> jax.Array:
+    def at(self, disp: jax.Array, fill: float = BIG) -> jax.Array:
         """The cost at absolute disparities ``disp`` ``i32[H, W]`` (``fill`` outside the band)."""
         j = disp.astype(jnp.int32) - self.offset
         inside = (j >= 0) & (j < self.k)

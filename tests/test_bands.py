@@ -1,6 +1,8 @@
 """Per-pixel disparity bands: every band kernel against a numpy reference, every stage with a
 band covering the whole range against today's full-volume stage, and random bands by hypothesis."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import jax
@@ -10,7 +12,7 @@ from hypothesis import given, settings, strategies as st
 from stereojax import aggregation, coarse, cost, refine
 from stereojax.config import BandConfig, SGMConfig
 from stereojax.sgm import sgm, sgm_volume
-from stereojax.volume import OUT_OF_BAND, CostVolume, band_from_full
+from stereojax.volume import BIG, CostVolume, band_from_full
 
 from . import reference as ref
 
@@ -93,7 +95,7 @@ def ref_right_wta(band, off, off_r, invalid=1.0):
                 elif 0 <= d - off[y, x] < k:
                     c = band[y, x, d - off[y, x]]
                 else:
-                    c = OUT_OF_BAND
+                    c = BIG
                 if c < best:
                     best, arg = c, j
             out[y, xr] = off_r[y, xr] + arg
@@ -223,11 +225,12 @@ def test_whole_range_band_chain_equals_full_chain(kitti_pair_small):
 
     left, right = kitti_pair_small
     cfg = stereojax.preset("census", 24)
-    full_vol = chain.classic_volume(left, right, cfg, None)
+    full_vol = chain.run(("matching cost",), chain.State(left, right),
+                         dataclasses.replace(cfg, band=BandConfig())).vol
     zeros = jnp.zeros(left.shape, jnp.int32)
     whole = CostVolume.band(full_vol.cost, zeros, 24)
-    a = np.asarray(chain.run(full_vol, None, left, right, cfg)["disparity"])
-    b = np.asarray(chain.run(whole, zeros, left, right, cfg)["disparity"])
+    a = np.asarray(chain.run(chain.BACK, chain.State(left, right, vol=full_vol), cfg).disparity)
+    b = np.asarray(chain.run(chain.BACK, chain.State(left, right, vol=whole, right_offset=zeros), cfg).disparity)
     # equal up to the order in which SGM's paths are summed (a float tie can then flip a WTA
     # choice: 6 of 10 240 pixels, all within 0.31 px, when written)
     diff = np.abs(a - b)

@@ -107,6 +107,20 @@ def test_lr_check_and_fill_match_reference():
     np.testing.assert_allclose(filled, ref.fill(dl, labels), atol=1e-6)
 
 
+def test_lr_check_matches_reference_with_right_disparities_out_of_range():
+    """The mismatch test (some d' < D with D_R(x - d') == d') as a scatter of the right pixels:
+    right disparities off the grid, negative or at and above the range are never a d'."""
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        dl = rng.uniform(0, 7, (5, 17)).astype(np.float32)
+        dr = rng.uniform(-2, 9, (5, 17)).astype(np.float32)
+        grid = rng.random(dr.shape) < 0.5
+        dr[grid] = np.round(dr[grid])
+        for d in (5, 7):
+            got = np.asarray(refine.lr_check(jnp.asarray(dl), jnp.asarray(dr), d, 1.0))
+            np.testing.assert_array_equal(got, ref.lr_check(dl, dr, d, 1.0))
+
+
 def test_lr_check_hand_case():
     # one row, width 6: left disparity 2 everywhere; right map agrees except at x = 1
     dl = np.full((1, 6), 2.0, np.float32)

@@ -11,7 +11,7 @@ import pytest
 
 import stereojax
 from stereojax import StereoInputError, chain
-from stereojax.volume import OUT_OF_BAND, CostVolume
+from stereojax.volume import BIG, CostVolume
 
 from .helpers import textured
 
@@ -33,7 +33,7 @@ def _maps(shape, lo, hi):
 
 
 def test_the_limits_stage_against_numpy():
-    """Entries outside a pixel's limits cost OUT_OF_BAND, the others are untouched (full range
+    """Entries outside a pixel's limits cost BIG, the others are untouched (full range
     and bands)."""
     rng = np.random.default_rng(0)
     h, w, d, k = 5, 7, 12, 4
@@ -41,16 +41,16 @@ def test_the_limits_stage_against_numpy():
     hi = (lo + rng.integers(1, 5, (h, w))).astype(np.int32)
     lim = jnp.asarray(np.stack([lo, hi]))
     full = rng.random((h, w, d)).astype(np.float32)
-    got = chain._limits({"vol": CostVolume.full(jnp.asarray(full)), "limits": lim}, None)["vol"].cost
+    got = chain._limits(chain.State(None, None, limits=lim, vol=CostVolume.full(jnp.asarray(full))), None).vol.cost
     disp = np.arange(d)[None, None, :]
-    want = np.where((disp >= lo[..., None]) & (disp < hi[..., None]), full, OUT_OF_BAND)
+    want = np.where((disp >= lo[..., None]) & (disp < hi[..., None]), full, BIG)
     np.testing.assert_array_equal(np.asarray(got), want)
     off = rng.integers(0, d - k + 1, (h, w)).astype(np.int32)
     band = rng.random((h, w, k)).astype(np.float32)
     vol = CostVolume.band(jnp.asarray(band), jnp.asarray(off), d)
-    got = chain._limits({"vol": vol, "limits": lim}, None)["vol"].cost
+    got = chain._limits(chain.State(None, None, limits=lim, vol=vol), None).vol.cost
     disp = off[..., None] + np.arange(k)
-    want = np.where((disp >= lo[..., None]) & (disp < hi[..., None]), band, OUT_OF_BAND)
+    want = np.where((disp >= lo[..., None]) & (disp < hi[..., None]), band, BIG)
     np.testing.assert_array_equal(np.asarray(got), want)
 
 

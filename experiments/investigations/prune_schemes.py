@@ -17,16 +17,15 @@ A scheme builds the pruned volume from the cache, exactly as the chain does: fil
 """
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
-
-
 import jax
 import jax.numpy as jnp
 
-from stereojax import learned_cost as lc, pipeline
-from stereojax.config import preset
+from stereojax import chain, learned_cost as lc, pipeline
+from stereojax.config import BandConfig, preset
 from stereojax.data import DEFAULT_DATA, load_kitti2015
 from stereojax.metrics import evaluate
 from stereojax.models import load_model, shipped_weights
@@ -49,7 +48,8 @@ def cache_frame(frame: str, folder: Path, model, data: str) -> Path:
 
     @jax.jit
     def compute(left, right):
-        vol = lc.candidate_volume(left, right, CFG)
+        vol = chain.run(chain.CANDIDATE, chain.State(left, right),
+                        lc.candidate_config(dataclasses.replace(CFG, band=BandConfig()))).vol.cost   # full range
         idx = jax.lax.top_k(-vol, K)[1].astype(jnp.int32)
         near = jnp.clip(idx[..., :1] + jnp.arange(-2, 3), 0, D - 1)
         fl, fr = lc.tower_features(net, v, left, right)
@@ -112,7 +112,7 @@ def main():
     model = load_model(shipped_weights("kitti2015"))
     frames = args.frames.split(",")
     paths = [cache_frame(f, Path(args.cache), model, args.data) for f in frames]
-    post = jax.jit(lambda vol, a, b: pipeline.chain_from_volume(vol, a, b, CFG)["disparity"])
+    post = jax.jit(lambda vol, a, b: pipeline.chain_from_volume(vol, a, b, CFG).disparity)
     census = jax.jit(lambda a, b: pipeline.disparity_grey(a, b, preset("census", D)))
     rows = []
     for scheme in SCHEMES:
