@@ -124,6 +124,21 @@ def _propagate_diagonal(values, valid, dy: int, dx: int):
     return last, have
 
 
+#: Batcher's odd-even merge sort of 8 values: 19 compare-exchanges (tests/test_kernels.py checks
+#: it on every 0/1 input, which proves it sorts everything)
+SORT8 = ((0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (1, 2), (5, 6),
+         (0, 4), (1, 5), (2, 6), (3, 7), (2, 4), (3, 5), (1, 2), (3, 4), (5, 6))
+
+
+def sort8(values: list) -> list:
+    """8 arrays of one shape sorted elementwise (ascending) by :data:`SORT8`: elementwise min and
+    max, about 8x faster on the CPU than ``jnp.sort`` over a stacked axis of 8."""
+    v = list(values)
+    for i, j in SORT8:
+        v[i], v[j] = jnp.minimum(v[i], v[j]), jnp.maximum(v[i], v[j])
+    return v
+
+
 def fill_disparity(disp: jax.Array, labels: jax.Array) -> jax.Array:
     """Fill non-CORRECT pixels of ``f32[H, W]`` disparity (MC-CNN's interpolation).
 
@@ -145,8 +160,7 @@ def fill_disparity(disp: jax.Array, labels: jax.Array) -> jax.Array:
     cands = jnp.stack([left_v, right_v, up_v, down_v] + [v for v, _ in diag])
     oks = jnp.stack([left_ok, right_ok, up_ok, down_ok] + [o for _, o in diag])
     # median over the available candidates: sort with missing ones pushed to +inf
-    big = jnp.float32(BIG)
-    srt = jnp.sort(jnp.where(oks, cands, big), axis=0)
+    srt = jnp.stack(sort8(list(jnp.where(oks, cands, jnp.float32(BIG)))))
     n = oks.sum(0)
     lo = jnp.take_along_axis(srt, jnp.clip((n - 1) // 2, 0, 7)[None], axis=0)[0]
     hi = jnp.take_along_axis(srt, jnp.clip(n // 2, 0, 7)[None], axis=0)[0]

@@ -156,3 +156,17 @@ def test_bilateral_matches_reference():
     disp, guide = rng.random((7, 8)).astype(np.float32) * 10, rng.random((7, 8)).astype(np.float32) * 255
     got = np.asarray(refine.bilateral_filter(jnp.asarray(disp), jnp.asarray(guide), 2, 1.7, 30.0))
     np.testing.assert_allclose(got, ref.bilateral(disp, guide, 2, 1.7, 30.0), atol=1e-5)
+
+
+def test_sort8_sorts_every_input():
+    """The filling's median sorts its 8 candidates with a network of compare-exchanges: sorting
+    every 0/1 input proves that it sorts any input (the 0-1 principle); random floats with ties
+    and BIG too."""
+    bits = (np.arange(256)[:, None] >> np.arange(8)[None, :]) & 1                    # [256, 8]
+    got = np.stack([np.asarray(a) for a in refine.sort8([jnp.asarray(bits[:, i]) for i in range(8)])], 1)
+    np.testing.assert_array_equal(got, np.sort(bits, axis=1))
+    rng = np.random.default_rng(3)
+    x = rng.integers(0, 5, (100, 8)).astype(np.float32)
+    x[rng.random(x.shape) < 0.2] = 1e9
+    got = np.stack([np.asarray(a) for a in refine.sort8([jnp.asarray(x[:, i]) for i in range(8)])], 1)
+    np.testing.assert_array_equal(got, np.sort(x, axis=1))
