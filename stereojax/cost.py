@@ -76,16 +76,29 @@ def census_bits(radius: tuple[int, int]) -> int:
 NEUTRAL_SHARE = 0.5
 
 
+def _in_strip(fn, cost: jax.Array, max_disp: int) -> jax.Array:
+    """``fn`` applied to the columns x < D - 1 of a left-view volume only: from x = D - 1 on,
+    every match x - d (d <= D - 1) lies inside the right image, so the rest is unchanged."""
+    strip = min(cost.shape[1], max(max_disp - 1, 0))
+    if strip == 0:
+        return cost
+    return jnp.concatenate([fn(cost[:, :strip]), cost[:, strip:]], axis=1)
+
+
 def neutral_border(cost: jax.Array, share: float = NEUTRAL_SHARE) -> jax.Array:
     """The left-view volume ``f32[H, W, D]`` with every entry whose match leaves the right image
     (x - d < 0) set to ``min + share * (mean - min)`` of that pixel's in-view costs: neither a
     good nor a bad match, so that the disparity of the border strip comes from the paths that
-    enter it from the image (SGM) rather than from a comparison with padding."""
-    inside = valid_mask(cost.shape[1], cost.shape[2], "left")[None]
-    count = jnp.maximum(inside.sum(-1, keepdims=True), 1)
-    mean = jnp.where(inside, cost, 0.0).sum(-1, keepdims=True) / count
-    best = jnp.where(inside, cost, jnp.inf).min(-1, keepdims=True)
-    return jnp.where(inside, cost, best + share * (mean - best))
+    enter it from the image (SGM) rather than from a comparison with padding. Only the strip
+    x < D - 1 is read and written."""
+    def strip(c):
+        inside = valid_mask(c.shape[1], c.shape[2], "left")[None]
+        count = jnp.maximum(inside.sum(-1, keepdims=True), 1)
+        mean = jnp.where(inside, c, 0.0).sum(-1, keepdims=True) / count
+        best = jnp.where(inside, c, jnp.inf).min(-1, keepdims=True)
+        return jnp.where(inside, c, best + share * (mean - best))
+
+    return _in_strip(strip, cost, cost.shape[2])
 
 
 def _apply_border(cost, max_disp, view, border):
@@ -198,10 +211,15 @@ def neutral_border_volume(vol, share: float = NEUTRAL_SHARE):
     a pixel whose whole band is out of view keeps its costs."""
     if not vol.banded:
         return vol.with_cost(neutral_border(vol.cost, share))
-    w = vol.shape[1]
-    inside = jnp.arange(w)[None, :, None] - vol.disparities() >= 0
-    count = inside.sum(-1, keepdims=True)
-    mean = jnp.where(inside, vol.cost, 0.0).sum(-1, keepdims=True) / jnp.maximum(count, 1)
-    best = jnp.where(inside, vol.cost, jnp.inf).min(-1, keepdims=True)
-    neutral = jnp.where(count > 0, best + share * (mean - best), vol.cost)
-    return vol.with_cost(jnp.where(inside, vol.cost, neutral))
+    strip = min(vol.shape[1], max(vol.max_disp - 1, 0))
+    off = vol.offset[:, :strip]
+
+    def in_strip(c):
+        inside = jnp.arange(c.shape[1])[None, :, None] - (off[..., None] + jnp.arange(vol.k)) >= 0
+        count = inside.sum(-1, keepdims=True)
+        mean = jnp.where(inside, c, 0.0).sum(-1, keepdims=True) / jnp.maximum(count, 1)
+        best = jnp.where(inside, c, jnp.inf).min(-1, keepdims=True)
+        neutral = jnp.where(count > 0, best + share * (mean - best), c)
+        return jnp.where(inside, c, neutral)
+
+    return vol.with_cost(_in_strip(in_strip, vol.cost, vol.max_disp))
