@@ -65,7 +65,7 @@ results-evaluate: $(STAMP)  ## the project's evaluations behind the README table
 	$(RESULTS_EVAL) --dataset middlebury --frames Cones_2003Q,Teddy_2003Q,Tsukuba_2001,Venus_2001,Motorcycle_MiddEval3Q --gt both --method best --out experiments/results/evaluate_middlebury_best
 	$(RESULTS_EVAL) --dataset middlebury --gt occ --method census --out experiments/results/evaluate_middlebury_census
 
-bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS, make demo's computation; issue targets -> experiments/results/bench.{json,md}
+bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS, stage profile, entries/s vs OpenCV, make demo's computation; issue targets -> experiments/results/bench.{json,md}
 	$(CLI) bench --data $(DATA) --out experiments/results
 
 dense-distill: $(STAMP)  ## issue 26: students distilled from the full KITTI model's band costs (targets cached in runs/dense_targets, ~45 min) -> experiments/results/dense_distill.{json,md,png}
