@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from . import aggregation, coarse, cost as cost_mod, refine
 from .aggregation import Arms
 from .sgm import sgm, sgm_volume
-from .volume import BIG, CostVolume, real_bounds, real_pixels
+from .volume import BIG, CostVolume, real_pixels
 
 
 # ---- the state ------------------------------------------------------------------------------
@@ -431,4 +431,4 @@ def result(st: State, confidence: bool):
 
 
 __all__ = ["State", "Stage", "STAGES", "FRONT", "BACK", "COARSE", "CANDIDATE", "run", "bands", "front",
-           "split", "first_program", "second_program", "model_args", "limit_bands", "real_bounds"]
+           "split", "first_program", "second_program", "model_args", "limit_bands"]
