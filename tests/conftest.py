@@ -11,14 +11,19 @@ DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 @pytest.fixture(scope="session", autouse=True)
 def _own_compile_cache(tmp_path_factory):
     """The suite's own persistent compile cache (STEREOJAX_CACHE_DIR, inherited by the CLI
-    subprocesses): the tests never read or write the user's cache, nor one that another process
+    subprocesses and shared by the workers of ``pytest -n``): the tests never read or write the user's cache, nor one that another process
     (a training, a Ray worker) writes at the same time."""
     import os
 
     if "STEREOJAX_CACHE_DIR" in os.environ:       # set by the caller: keep it
         yield
         return
-    os.environ["STEREOJAX_CACHE_DIR"] = str(tmp_path_factory.mktemp("compile-cache"))
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):    # pytest -n N: the workers share one cache (writes
+        base = base.parent                       # are atomic: stereojax.compile_cache)
+    folder = base / "compile-cache"
+    folder.mkdir(exist_ok=True)
+    os.environ["STEREOJAX_CACHE_DIR"] = str(folder)
     try:
         yield
     finally:
