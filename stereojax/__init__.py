@@ -8,11 +8,12 @@ Public API::
     inter = stereojax.stages(left, right)          # every intermediate result
 """
 
-from .config import AggregationConfig, CostConfig, RefineConfig, SGMConfig, StereoConfig, preset
-from .errors import (CheckpointError, ConfigError, InputWarning, MemoryBudgetError, OutputError,
-                     StereoError, StereoInputError)
-from .pipeline import Predictor, disparity, stages
-from .models import load_model
+from stereojax.config import (AggregationConfig, CostConfig, RefineConfig, SGMConfig, StereoConfig,
+                              preset)
+from stereojax.errors import (CheckpointError, ConfigError, InputWarning, MemoryBudgetError,
+                              OutputError, StereoError, StereoInputError)
+from stereojax.inference.predictor import Predictor, disparity, stages
+from stereojax.models.registry import load_model
 
 __all__ = [
     "Predictor", "disparity", "stages", "preset", "load_model",

@@ -7,8 +7,8 @@ reads and writes. A stage is ``State -> State`` (with the chain's static config)
 :data:`STAGES` lists them in order, the one place where the order is written, and :func:`run`
 runs any sub-list of it. The coarse pass that sets the bands (:data:`COARSE`) and the census
 chain that ranks the learned head's candidates (:data:`CANDIDATE`) are sub-lists of the same
-stages, run by the same :func:`run` on a config of their own (:func:`stereojax.coarse.coarse_config`,
-:func:`stereojax.learned_cost.candidate_config`). ``stereojax bench`` times :data:`STAGES` one
+stages, run by the same :func:`run` on a config of their own (:func:`stereojax.matching_cost.coarse.coarse_config`,
+:func:`stereojax.matching_cost.learned.candidate_config`). ``stereojax bench`` times :data:`STAGES` one
 stage at a time.
 
 What several stages share is computed once per frame and carried: the cross arms of the left
@@ -19,7 +19,7 @@ pass runs once for both views), the tower features. A stage that has nothing to 
 This module is the only one that knows the methods: :func:`model_args` checks a model against
 the cost method, and :func:`split` says where a method's chain is cut into two compiled programs
 (:func:`first_program`, :func:`second_program`; the pruned learned cost, for its peak memory).
-The inference code (:mod:`stereojax.pipeline`) compiles what this module gives it without naming
+The inference code (:mod:`stereojax.inference.predictor`) compiles what this module gives it without naming
 a method.
 """
 
@@ -33,11 +33,19 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from . import aggregation, coarse, cost as cost_mod, refine
-from .aggregation import Arms
-from .sgm import sgm, sgm_volume
-from .volume import BIG, CostVolume, real_pixels
-
+from stereojax.aggregation import cross_based as aggregation
+from stereojax.aggregation.cross_based import Arms
+from stereojax.config import CostConfig, StereoConfig
+from stereojax.disparity import right_view, winner_takes_all
+from stereojax.errors import ConfigError
+from stereojax.filters import bilateral, median
+from stereojax.matching_cost import classical as cost_mod, coarse
+from stereojax.matching_cost.learned import candidate_config, rank, tower_features
+from stereojax.models.nets import NetConfig
+from stereojax.optimization.semi_global import sgm, sgm_volume
+from stereojax.refinement import parabola
+from stereojax.validation import confidence_measure, filling, left_right
+from stereojax.volume import BIG, CostVolume, real_pixels
 
 # ---- the state ------------------------------------------------------------------------------
 
@@ -98,7 +106,7 @@ jax.tree_util.register_dataclass(State, data_fields=list(FIELDS), meta_fields=["
 
 class Stage(NamedTuple):
     """One stage: its name (in ``bench`` and the docs), ``fn(state, config) -> state``, and
-    ``keep``: (key, field) pairs, the keys under which :func:`stereojax.pipeline.stages` keeps
+    ``keep``: (key, field) pairs, the keys under which :func:`stereojax.inference.predictor.stages` keeps
     the fields this stage makes."""
 
     name: str
@@ -123,7 +131,7 @@ def limit_bands(offsets, limits, config):
 
 def bands(left: jax.Array, right: jax.Array, config, valid=None):
     """(left offsets, right offsets) ``i32[H, W]`` of a banded config: :data:`COARSE` run on the
-    pair averaged down by ``band.scale``, then :func:`stereojax.coarse.band_offsets`; (None,
+    pair averaged down by ``band.scale``, then :func:`stereojax.matching_cost.coarse.band_offsets`; (None,
     None) for the full range."""
     if not config.banded:
         return None, None
@@ -144,7 +152,6 @@ def _bands(st: State, config) -> State:
 def _tower(st: State, config) -> State:
     if config.cost.method != "learned":
         return st
-    from .learned_cost import tower_features
 
     feats = tower_features(st.net, st.variables, st.left, st.right, st.valid)
     return st.replace(features=jax.lax.optimization_barrier(feats))
@@ -159,7 +166,6 @@ def pruned(config, net) -> bool:
 def _candidates(st: State, config) -> State:
     if not pruned(config, st.net):
         return st
-    from .learned_cost import candidate_config, rank
 
     sub = run(CANDIDATE, st, candidate_config(config))
     return st.replace(ranked=rank(sub.vol, config), arms=sub.arms)
@@ -168,13 +174,13 @@ def _candidates(st: State, config) -> State:
 def _matching_cost(st: State, config) -> State:
     """The left view's volume of the config's cost method in the bands (``st.offset``)."""
     if config.cost.method == "learned":
-        from .learned_cost import learned_volume
+        from stereojax.matching_cost.learned import learned_volume
 
         vol = learned_volume(st.net, st.variables, st.features, st.ranked, config, st.offset, st.valid)
         right_vol = None
         if config.refine.lr_check and not config.refine.right_from_left:
             # the network's right-view cost is exactly the skewed left one: C_R(x, d) = C_L(x + d, d)
-            right_vol = refine.right_cost_from_left(vol.cost, cost_mod.INVALID_COST,
+            right_vol = right_view.right_cost_from_left(vol.cost, cost_mod.INVALID_COST,
                                                     None if st.valid is None else st.valid[1])
         return st.replace(vol=vol, right_vol=right_vol, features=None, ranked=None)
     if st.offset is None:
@@ -233,7 +239,7 @@ def _limits(st: State, config) -> State:
 
 
 def _wta(st: State, config) -> State:
-    disp_wta = refine.wta_volume(st.vol)
+    disp_wta = winner_takes_all.wta_volume(st.vol)
     return st.replace(disp_wta=disp_wta, disp=disp_wta.astype(jnp.float32))
 
 
@@ -244,9 +250,9 @@ def _right_view(st: State, config) -> State:
         right_offset = st.right_offset
         if right_offset is None:
             right_offset = jnp.zeros(st.vol.shape, jnp.int32)
-        return st.replace(disp_right=refine.right_wta(st.vol, right_offset, cost_mod.INVALID_COST))
+        return st.replace(disp_right=right_view.right_wta(st.vol, right_offset, cost_mod.INVALID_COST))
     # full range only (config.validate): the right view aggregated on its own
-    return st.replace(disp_right=refine.wta(_right_chain(st, config)), right_vol=None)
+    return st.replace(disp_right=winner_takes_all.wta(_right_chain(st, config)), right_vol=None)
 
 
 def _right_chain(st: State, config):
@@ -267,32 +273,32 @@ def _right_chain(st: State, config):
 def _lr_fill(st: State, config) -> State:
     if not config.refine.lr_check:
         return st
-    labels = refine.lr_check(st.disp, st.disp_right.astype(jnp.float32), config.max_disp,
+    labels = left_right.lr_check(st.disp, st.disp_right.astype(jnp.float32), config.max_disp,
                              config.refine.lr_tolerance)
     mask = st.real_mask()
     if mask is not None:    # padding never serves as a source of the filling
-        labels = jnp.where(mask, labels, refine.MISMATCH)
-    return st.replace(labels=labels, disp=refine.fill_disparity(st.disp, labels))
+        labels = jnp.where(mask, labels, left_right.MISMATCH)
+    return st.replace(labels=labels, disp=filling.fill_disparity(st.disp, labels))
 
 
 def _confidence(st: State, config) -> State:
-    return st.replace(confidence=refine.confidence_volume(st.vol, st.disp_wta, st.disp_right,
+    return st.replace(confidence=confidence_measure.confidence_volume(st.vol, st.disp_wta, st.disp_right,
                                                           config.refine.lr_tolerance))
 
 
 def _subpixel(st: State, config) -> State:
     if not config.refine.subpixel:
         return st
-    return st.replace(disp=refine.subpixel_volume(st.vol, st.disp))
+    return st.replace(disp=parabola.subpixel_volume(st.vol, st.disp))
 
 
 def _median(st: State, config) -> State:
-    return st.replace(disp=refine.median_filter(st.disp, config.refine.median_size))
+    return st.replace(disp=median.median_filter(st.disp, config.refine.median_size))
 
 
 def _bilateral(st: State, config) -> State:
     r = config.refine
-    disp = refine.bilateral_filter(st.disp, st.left, r.bilateral_radius, r.bilateral_sigma_space,
+    disp = bilateral.bilateral_filter(st.disp, st.left, r.bilateral_radius, r.bilateral_sigma_space,
                                    r.bilateral_sigma_range)
     disp = jnp.clip(disp, 0.0, float(config.max_disp - 1))
     if st.limits is not None:          # the filling and the filters never leave a pixel's limits
@@ -363,11 +369,10 @@ def run(stages, st: State, config, kept: dict | None = None) -> State:
 
 def model_args(config, model):
     """(variables, net) for the jitted chain, checking ``model`` against the cost method: a
-    :class:`~stereojax.learned_cost.LearnedModel` for the learned cost, None for the classical ones."""
-    from .errors import ConfigError
+    :class:`~stereojax.matching_cost.learned.LearnedModel` for the learned cost, None for the classical ones."""
 
     if config.cost.method == "learned":
-        from .learned_cost import LearnedModel
+        from stereojax.matching_cost.learned import LearnedModel
 
         if not isinstance(model, LearnedModel):
             raise ConfigError("cost method 'learned' needs params=LearnedModel (e.g. "
@@ -430,5 +435,21 @@ def result(st: State, confidence: bool):
     return (st.disparity, st.confidence) if confidence else st.disparity
 
 
+# ---- the learned cost volume of a pair, for previews and tests -----------------------------
+
+@functools.partial(jax.jit, static_argnames=("net", "max_disp", "rows_per_tile", "candidates"))
+def learned_cost(net: NetConfig, variables, left: jax.Array, right: jax.Array, max_disp: int,
+                 rows_per_tile: int = 32, candidates: int = 0) -> jax.Array:
+    """Left-view cost volume ``f32[H, W, D]`` of grey images (0..255) ``f32[H, W]``.
+
+    candidates: 0 = exact (every disparity through the head); K > 0 = pruned mode, the dense
+    head only on the K best disparities of the census chain of the default settings. The
+    chain itself runs :data:`FRONT`, which takes every setting from its config.
+    """
+    cfg = StereoConfig(max_disp=max_disp, cost=CostConfig(method="learned", rows_per_tile=rows_per_tile,
+                                                          candidates=candidates))
+    return front(left, right, cfg, variables, net).vol.cost
+
+
 __all__ = ["State", "Stage", "STAGES", "FRONT", "BACK", "COARSE", "CANDIDATE", "run", "bands", "front",
-           "split", "first_program", "second_program", "model_args", "limit_bands"]
+           "split", "first_program", "second_program", "model_args", "limit_bands", "learned_cost"]

@@ -11,11 +11,12 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
-from pathlib import Path
+import numbers
 from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
 from typing import Any, Mapping
 
-from .errors import ConfigError
+from stereojax.errors import ConfigError
 
 COST_METHODS = ("census", "sad", "learned")
 
@@ -32,10 +33,10 @@ class CostConfig:
     census_radius: (ry, rx) half-sizes of the census window, e.g. (3, 4) is 7x9.
     sad_radius: half-size of the square SAD window.
     border: matches that leave the image (x - d < 0): "replicate" compares with the repeated
-      first column of the other image, "worst" gives them the worst cost (see cost.py),
+      first column of the other image, "worst" gives them the worst cost (see matching_cost/classical.py),
       "neutral" gives them halfway between the pixel's best and mean in-view cost, so that
       aggregation and SGM carry disparities in from the rest of the image (any cost method,
-      :func:`stereojax.cost.neutral_border`).
+      :func:`stereojax.matching_cost.classical.neutral_border`).
     rows_per_tile: image rows per tile of the learned dense head (bounds its memory).
     candidates: learned dense head only: 0 = exact (every disparity); K > 0 = PRUNED mode
       (not exact; entries the head does not see get cost 1), see ``unsure_share``.
@@ -179,7 +180,7 @@ class RefineConfig:
 
 @dataclass(frozen=True)
 class BandConfig:
-    """Per-pixel disparity bands set by a coarse pass (stereojax.coarse).
+    """Per-pixel disparity bands set by a coarse pass (stereojax.matching_cost.coarse).
 
     width: K, the disparities every pixel's band holds; 0 (or >= max_disp) = the full range
       0 .. max_disp - 1 for every pixel (no coarse pass).
@@ -321,7 +322,6 @@ def _coerce(value: Any, default: Any, name: str) -> Any:
 
 def _as_int(value):
     """numpy integers (e.g. ``np.int64(16)``) -> int; anything else unchanged (validate() judges it)."""
-    import numbers
 
     return int(value) if isinstance(value, numbers.Integral) and not isinstance(value, bool) else value
 

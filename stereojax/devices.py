@@ -17,7 +17,7 @@ from typing import Any, TypeVar
 
 import jax
 
-from .errors import ConfigError
+from stereojax.errors import ConfigError
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -52,7 +52,7 @@ def current_device():
 def map_frames(work: Callable[[T], R], items: Iterable[T], devices: list | None = None) -> Iterator[R]:
     """``work(item)`` for every item, in order, with one worker thread per device; inside
     ``work``, :func:`current_device` names the worker's device (pass it to
-    :class:`stereojax.pipeline.Predictor`). With one device (or none given) the items run
+    :class:`stereojax.inference.predictor.Predictor`). With one device (or none given) the items run
     one after the other in the calling thread. At most one frame per device is in flight plus
     one waiting, so memory grows with the device count, not with the number of items.
 

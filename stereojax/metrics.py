@@ -17,7 +17,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import StereoInputError
+from stereojax.errors import StereoInputError
 
 __all__ = ["interpolate_background", "evaluate", "mean_metrics"]
 

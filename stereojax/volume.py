@@ -7,7 +7,7 @@ A :class:`CostVolume` holds, for every pixel of the left (reference) view, the c
   ``offset[y, x] + k`` (lower is better);
 * ``offset`` ``i32[H, W]``: the first disparity of each pixel's band, ``0 <= offset <= D - K``;
 * ``valid`` ``i32[2]`` or None: the real (rows, columns) of a pair padded on the right and
-  bottom to its size bucket (:mod:`stereojax.compile_cache`); None when nothing is padded;
+  bottom to its size bucket (:mod:`stereojax.inference.compile_cache`); None when nothing is padded;
 * ``max_disp`` (static): the full range ``D``; absolute disparities are ``0 .. D - 1``;
 * ``banded`` (static): False for the full range (``K == D``, offset 0 everywhere), which
   every stage runs with its full-volume kernel; True for per-pixel bands.
@@ -120,8 +120,8 @@ def windows(values: jax.Array, start: jax.Array, size: int) -> jax.Array:
 
     A gather of contiguous slices (``vmap`` of ``dynamic_slice``): on the CPU about 3x faster
     than gathering the same entries one by one with ``take_along_axis`` for the census band
-    (:func:`stereojax.cost.census_band`), and faster for SGM's predecessor and its right-image
-    gradients (:mod:`stereojax.sgm`); for CBCA it was slower, so CBCA gathers entries
+    (:func:`stereojax.matching_cost.classical.census_band`), and faster for SGM's predecessor and its right-image
+    gradients (:mod:`stereojax.optimization.semi_global`); for CBCA it was slower, so CBCA gathers entries
     (docs/results.md).
     """
     def one(v, s):

@@ -20,7 +20,7 @@ def _own_compile_cache(tmp_path_factory):
         return
     base = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):    # pytest -n N: the workers share one cache (writes
-        base = base.parent                       # are atomic: stereojax.compile_cache)
+        base = base.parent                       # are atomic: stereojax.inference.compile_cache)
     folder = base / "compile-cache"
     folder.mkdir(exist_ok=True)
     os.environ["STEREOJAX_CACHE_DIR"] = str(folder)
@@ -41,7 +41,7 @@ def _free_compiled_programs():
 
     import jax
 
-    from stereojax import pipeline
+    from stereojax.inference import predictor as pipeline
 
     pipeline._COMPILED.clear()
     jax.clear_caches()

@@ -12,8 +12,8 @@ import numpy as np
 
 
 def leaves(path):
-    from stereojax import checkpoint
-    from stereojax.train import TrainConfig, init_state
+    from stereojax.models import checkpoint
+    from stereojax.learning.train import TrainConfig, init_state
 
     cfg = TrainConfig.from_dict(checkpoint.read_config(path))
     state, _ = checkpoint.load(path, init_state(cfg))
@@ -22,7 +22,7 @@ def leaves(path):
 
 def main(out: Path) -> None:
     from stereojax.errors import ConfigError
-    from stereojax.train import fit, train_preset
+    from stereojax.learning.train import fit, train_preset
     from tests.helpers import tiny_sampler as stereojax_sampler, training_samples as _samples
 
     cfg = train_preset("tiny", sampler=stereojax_sampler(), steps=6, checkpoint_every=2, val_every=6)
@@ -54,7 +54,7 @@ def main(out: Path) -> None:
 def multihost(out: Path) -> None:
     """One process of a two-process run (JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES and
     JAX_PROCESS_ID set by the test): data-parallel over both processes' devices."""
-    from stereojax.train import fit, maybe_initialize_distributed, train_preset
+    from stereojax.learning.train import fit, maybe_initialize_distributed, train_preset
     from tests.helpers import tiny_sampler as stereojax_sampler, training_samples as _samples
 
     assert maybe_initialize_distributed()

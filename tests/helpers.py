@@ -41,14 +41,14 @@ def training_samples(n=2, h=40, w=96, d=5):
 
 def tiny_sampler():
     """Patch offsets that fit the small training samples."""
-    from stereojax.sampling import SamplerConfig
+    from stereojax.learning.sampling import SamplerConfig
 
     return SamplerConfig(v_pos=1.0, z_low=3.0, z_high=8.0)
 
 
 def tiny_train_config(**kw):
     """The tiny training preset with :func:`tiny_sampler`."""
-    from stereojax.train import train_preset
+    from stereojax.learning.train import train_preset
 
     return train_preset("tiny", sampler=tiny_sampler(), **kw)
 
@@ -71,7 +71,7 @@ def fake_kitti(root, n=2, with_gt=True):
 
 def run_cli(argv, capsys):
     """``stereojax`` in-process: (exit code, stdout, stderr) of ``main(argv)``."""
-    from stereojax.cli import main
+    from stereojax.app.cli import main
 
     try:
         code = main([str(a) for a in argv])

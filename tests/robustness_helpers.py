@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereojax.cli import main
+from stereojax.app.cli import main
 from stereojax.data import io
 
 from .helpers import shifted_pair as _shifted_pair
@@ -112,7 +112,7 @@ _PREDICT_OUTPUTS = {"disparity.png", "disparity.pfm", "disparity_color.png", "di
 
 
 def _predict_cmd(lp, rp, out):
-    return [sys.executable, "-m", "stereojax.cli", "predict", str(lp), str(rp), "--out", str(out),
+    return [sys.executable, "-m", "stereojax.app.cli", "predict", str(lp), str(rp), "--out", str(out),
             "--max-disp", "16", "--method", "census", "--baseline", "0.54", "--focal", "721.5", "--ply"]
 
 
@@ -139,8 +139,8 @@ def _kill_after(cmd, env, delay=None, folder=None, rng=None):
 
 
 def _ckpt_step(ckpt: Path):
-    from stereojax import checkpoint
-    from stereojax.train import TrainConfig, init_state
+    from stereojax.models import checkpoint
+    from stereojax.learning.train import TrainConfig, init_state
 
     if not ckpt.exists():
         return 0, None

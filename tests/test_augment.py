@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from stereojax.errors import ConfigError
-from stereojax.sampling import (AUGMENT_MCCNN, AugmentConfig, PatchData, SamplerConfig, _cut,
-                                _cut_warped, sample_batch)
+from stereojax.learning.sampling import (AUGMENT_MCCNN, AugmentConfig, PatchData, SamplerConfig,
+                                         _cut, _cut_warped, sample_batch)
 
 P = 9
 
@@ -110,7 +110,7 @@ def test_bad_augmentation_settings_are_refused(bad):
 
 
 def test_train_config_round_trips_augmentation_and_old_configs_still_load():
-    from stereojax.train import TrainConfig, train_preset
+    from stereojax.learning.train import TrainConfig, train_preset
 
     cfg = train_preset("tiny", sampler=SamplerConfig(augment=AUGMENT_MCCNN))
     again = TrainConfig.from_dict(cfg.to_dict())
@@ -121,7 +121,7 @@ def test_train_config_round_trips_augmentation_and_old_configs_still_load():
 
 
 def test_train_augment_flag_turns_on_the_mccnn_augmentation():
-    from stereojax.train import train_preset, with_augmentation
+    from stereojax.learning.train import train_preset, with_augmentation
 
     cfg = train_preset("tiny")
     assert with_augmentation(cfg).sampler.augment == AUGMENT_MCCNN

@@ -9,9 +9,15 @@ import jax
 import jax.numpy as jnp
 from hypothesis import given, settings, strategies as st
 
-from stereojax import aggregation, coarse, cost, refine
+from stereojax.aggregation import cross_based as aggregation
+from stereojax.matching_cost import coarse
+from stereojax.matching_cost import classical as cost
+from stereojax.disparity import right_view
+from stereojax.disparity import winner_takes_all
+from stereojax.refinement import parabola
+from stereojax.validation import confidence_measure
 from stereojax.config import BandConfig, SGMConfig
-from stereojax.sgm import sgm, sgm_volume
+from stereojax.optimization.semi_global import sgm, sgm_volume
 from stereojax.volume import BIG, CostVolume, band_from_full
 
 from . import reference as ref
@@ -169,11 +175,11 @@ def test_wta_right_view_subpixel_neutral_match_references():
     band = _band(full, off, k)
     off_r = np.clip(off[:, ::-1] + 1, 0, D - k).astype(np.int32)
     vol = CostVolume.band(jnp.asarray(band), jnp.asarray(off), D)
-    np.testing.assert_array_equal(np.asarray(refine.wta_volume(vol)), band.argmin(-1) + off)
-    np.testing.assert_array_equal(np.asarray(refine.right_wta(vol, jnp.asarray(off_r))),
+    np.testing.assert_array_equal(np.asarray(winner_takes_all.wta_volume(vol)), band.argmin(-1) + off)
+    np.testing.assert_array_equal(np.asarray(right_view.right_wta(vol, jnp.asarray(off_r))),
                                   ref_right_wta(band, off, off_r))
     disp = (off + np.random.default_rng(5).integers(-1, k + 1, off.shape)).astype(np.float32)
-    np.testing.assert_allclose(np.asarray(refine.subpixel_volume(vol, jnp.asarray(disp))),
+    np.testing.assert_allclose(np.asarray(parabola.subpixel_volume(vol, jnp.asarray(disp))),
                                ref_subpixel_band(band, off, disp), atol=1e-5)
     np.testing.assert_allclose(np.asarray(cost.neutral_border_volume(vol).cost),
                                ref_neutral_band(band, off), atol=1e-6)
@@ -205,17 +211,17 @@ def test_whole_range_band_equals_full_stages():
     np.testing.assert_allclose(np.asarray(sgm_volume(whole, g, r, cfg).cost), np.asarray(sgm(c, g, r, cfg)),
                                rtol=1e-5, atol=1e-5)
     zeros = jnp.zeros(full.shape[:2], jnp.int32)
-    np.testing.assert_array_equal(np.asarray(refine.right_wta(whole, zeros)),
-                                  np.asarray(refine.wta(refine.right_cost_from_left(c))))
+    np.testing.assert_array_equal(np.asarray(right_view.right_wta(whole, zeros)),
+                                  np.asarray(winner_takes_all.wta(right_view.right_cost_from_left(c))))
     disp = jnp.asarray(full.argmin(-1).astype(np.float32))
-    np.testing.assert_allclose(np.asarray(refine.subpixel_volume(whole, disp)),
-                               np.asarray(refine.subpixel(c, disp)), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(parabola.subpixel_volume(whole, disp)),
+                               np.asarray(parabola.subpixel(c, disp)), atol=1e-6)
     np.testing.assert_allclose(np.asarray(cost.neutral_border_volume(whole).cost),
                                np.asarray(cost.neutral_border(c)), atol=1e-6)
-    dw = refine.wta_volume(whole)
-    dr = refine.right_wta(whole, zeros)
-    np.testing.assert_allclose(np.asarray(refine.confidence_volume(whole, dw, dr)),
-                               np.asarray(refine.confidence(c, dw, dr)), atol=1e-6)
+    dw = winner_takes_all.wta_volume(whole)
+    dr = right_view.right_wta(whole, zeros)
+    np.testing.assert_allclose(np.asarray(confidence_measure.confidence_volume(whole, dw, dr)),
+                               np.asarray(confidence_measure.confidence(c, dw, dr)), atol=1e-6)
 
 
 def test_whole_range_band_chain_equals_full_chain(kitti_pair_small):
@@ -241,7 +247,7 @@ def test_whole_range_band_chain_equals_full_chain(kitti_pair_small):
 def kitti_pair_small(data_root):
     """A 64x160 crop of a real KITTI 2015 frame, grey 0..255."""
     from stereojax.data import load_kitti2015
-    from stereojax.pipeline import as_grey
+    from stereojax.inference.predictor import as_grey
 
     s = load_kitti2015(data_root / "kitti2015" / "training", "000003")
     crop = (slice(200, 264), slice(500, 660))
@@ -263,10 +269,10 @@ def test_random_bands_every_kernel_matches_reference(seed, k):
     np.testing.assert_allclose(np.asarray(sgm_volume(vol, jnp.asarray(grey), jnp.asarray(right), cfg).cost),
                                ref_sgm_band(band, off, D, grey, right, 8, 0.1, 0.5), rtol=1e-5, atol=1e-4)
     off_r = np.roll(off, 2, axis=1)
-    np.testing.assert_array_equal(np.asarray(refine.right_wta(vol, jnp.asarray(off_r))),
+    np.testing.assert_array_equal(np.asarray(right_view.right_wta(vol, jnp.asarray(off_r))),
                                   ref_right_wta(band, off, off_r))
     disp = band.argmin(-1) + off
-    np.testing.assert_allclose(np.asarray(refine.subpixel_volume(vol, jnp.asarray(disp.astype(np.float32)))),
+    np.testing.assert_allclose(np.asarray(parabola.subpixel_volume(vol, jnp.asarray(disp.astype(np.float32)))),
                                ref_subpixel_band(band, off, disp), atol=1e-5)
 
 

@@ -5,7 +5,7 @@ import copy
 import json
 from pathlib import Path
 
-from stereojax import bench
+from stereojax.app import bench
 
 RESULTS = Path(__file__).resolve().parents[1] / "experiments" / "results"
 
@@ -82,7 +82,7 @@ def test_cpu_description_names_the_model_and_vector_units():
 def test_demo_child_times_what_make_demo_runs(monkeypatch):
     """The demo timing is of `--method best` on the built-in pair, with the confidence map, as
     `make demo` runs it (the chain itself is replaced: make demo's own test runs it)."""
-    from stereojax import models
+    from stereojax.models import registry as models
 
     seen = {}
 

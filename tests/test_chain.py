@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 import stereojax
-from stereojax import bench, chain, pipeline
-from stereojax.learned_cost import LearnedModel
-from stereojax.nets import NetConfig, init_params
+from stereojax import chain
+from stereojax.app import bench
+from stereojax.inference import predictor as pipeline
+from stereojax.matching_cost.learned import LearnedModel
+from stereojax.models.nets import NetConfig, init_params
 
 from .helpers import shifted_pair
 

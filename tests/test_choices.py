@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereojax.batch import range_warning
+from stereojax.app.batch import range_warning
 from stereojax.data import io
 from tests.helpers import shifted_pair, run_cli
 
@@ -138,7 +138,7 @@ def test_first_line_names_method_model_and_reason(tmp_path, capsys):
 
 
 def test_best_rule_and_scene_option():
-    from stereojax.models import BEST, SHIPPED, WEIGHTS_DIR, resolve
+    from stereojax.models.registry import BEST, SHIPPED, WEIGHTS_DIR, resolve
 
     if not all((WEIGHTS_DIR / f"{SHIPPED[BEST[k]]}.msgpack").is_file() for k in BEST):
         pytest.skip("the shipped models are not all there")
@@ -168,13 +168,13 @@ def test_make_evaluate_writes_outside_the_project_results():
 
 @pytest.mark.slow
 def test_training_stopped_by_sigint_writes_a_checkpoint_and_says_how_to_resume(tmp_path):
-    from stereojax import checkpoint
+    from stereojax.models import checkpoint
     from tests.helpers import fake_kitti
 
     root = tmp_path / "training"
     fake_kitti(root, n=2)
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "stereojax.cli", "train", "--data", str(root), "--dataset", "kitti2015",
+    cmd = [sys.executable, "-m", "stereojax.app.cli", "train", "--data", str(root), "--dataset", "kitti2015",
            "--frames", "0-1", "--preset", "tiny", "--steps", "6000", "--checkpoint-every", "100000", "--out", str(out)]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     log = tmp_path / "stderr.txt"
@@ -196,7 +196,7 @@ def test_training_stopped_by_sigint_writes_a_checkpoint_and_says_how_to_resume(t
     assert 0 < step < 6000
     assert f"the checkpoint of step {step} is kept in {out / 'checkpoint.msgpack'}" in last
     assert checkpoint.read_config(out / "checkpoint.msgpack")                # a readable checkpoint
-    from stereojax.checkpoint import _read
+    from stereojax.models.checkpoint import _read
 
     assert int(np.asarray(_read(out / "checkpoint.msgpack")["state"]["step"])) == step
     again = subprocess.run([*cmd, "--resume"], env=env, capture_output=True, text=True, timeout=600)

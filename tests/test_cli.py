@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from stereojax.cli import main
+from stereojax.app.cli import main
 from stereojax.data import io
 from stereojax.errors import CheckpointError
-from stereojax.models import WEIGHTS_DIR as WEIGHTS
+from stereojax.models.registry import WEIGHTS_DIR as WEIGHTS
 
 from .helpers import fake_kitti as _fake_kitti, shifted_pair as _shifted_pair
 
@@ -120,7 +120,7 @@ def test_evaluate_without_gt_and_empty_folder(tmp_path, capsys):
 
 
 def test_console_script_reports_errors_without_traceback(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "stereojax.cli", "predict", str(tmp_path / "a.png"),
+    proc = subprocess.run([sys.executable, "-m", "stereojax.app.cli", "predict", str(tmp_path / "a.png"),
                            str(tmp_path / "b.png"), "--out", str(tmp_path / "o")],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
@@ -151,7 +151,8 @@ def test_demo_on_the_builtin_sample(tmp_path, capsys):
 def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):
     from pathlib import Path
 
-    from stereojax.models import BEST, SHIPPED, WEIGHTS_DIR, resolve as models_resolve, weights_for_input
+    from stereojax.models.registry import (BEST, SHIPPED, WEIGHTS_DIR, resolve as models_resolve,
+                                           weights_for_input)
 
     kitti = WEIGHTS_DIR / f"{SHIPPED[BEST['kitti']]}.msgpack"          # what best runs on KITTI
     full = WEIGHTS_DIR / "kitti2015_downsize_relaxed.msgpack"          # the paper's network
@@ -183,15 +184,15 @@ def test_default_method_picks_the_shipped_model_for_the_input(tmp_path):
 
 
 def stereojax_models():
-    import stereojax.models
-    return stereojax.models
+    import stereojax.models.registry
+    return stereojax.models.registry
 
 
 def test_best_runs_the_same_chain_on_every_backend_and_the_exact_head_on_request(monkeypatch):
     """`best` never switches to the exact head by backend; --exact-head asks for it."""
     import jax
 
-    from stereojax.models import learned_config, resolve, weights_for_input
+    from stereojax.models.registry import learned_config, resolve, weights_for_input
 
     seen = []
     for backend in ("cpu", "gpu"):

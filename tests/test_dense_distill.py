@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 import stereojax
-from stereojax.dense_distill import (DenseTargets, band_scores, cache_targets, dense_batch, load_targets,
-                                     sample_weights, teacher_targets)
-from stereojax.learned_cost import LearnedModel, naive_dense_cost, tower_features
-from stereojax.nets import MatchNet, NetConfig, init_params
+from stereojax.learning.dense_distill import (DenseTargets, band_scores, cache_targets,
+                                              dense_batch, load_targets, sample_weights,
+                                              teacher_targets)
+from stereojax.matching_cost.learned import LearnedModel, naive_dense_cost, tower_features
+from stereojax.models.nets import MatchNet, NetConfig, init_params
 from tests.helpers import shifted_pair
 
 NET = NetConfig(features=8, widths=(16, 8))
@@ -109,7 +110,7 @@ def test_target_cache_resumes_and_notices_other_settings(tmp_path):
 @pytest.mark.slow
 def test_dense_term_teaches_the_students_band_costs(tmp_path):
     """A student trained on the dense term alone gets closer to the teacher's band costs."""
-    from stereojax.train import fit
+    from stereojax.learning.train import fit
     from tests.helpers import tiny_train_config, training_samples
 
     left, right = (a.astype(np.float32) for a in shifted_pair(5, h=48, w=96))
@@ -131,7 +132,7 @@ def test_dense_term_teaches_the_students_band_costs(tmp_path):
     with pytest.raises(stereojax.errors.ConfigError, match="dense distillation targets"):
         fit(tcfg, training_samples(), None, tmp_path / "x", progress=False)
     fit(tcfg, training_samples(), None, tmp_path / "s", progress=False, dense=data)
-    from stereojax.models import load_model
+    from stereojax.models.registry import load_model
 
     after = band_error(load_model(tmp_path / "s" / "checkpoint.msgpack").variables)
     assert after < 0.6 * before, (before, after)

@@ -1,10 +1,10 @@
-"""stereojax.depth: disparity -> depth, depth files, point clouds and PLY files."""
+"""stereojax.data.depth: disparity -> depth, depth files, point clouds and PLY files."""
 
 import cv2
 import numpy as np
 import pytest
 
-from stereojax import depth
+from stereojax.data import depth
 from stereojax.data.datasets import Calibration
 from stereojax.errors import OutputError, StereoInputError
 

@@ -61,7 +61,7 @@ def _forced(n: int) -> dict:
 
 
 def _cli(args, env, timeout=600):
-    return subprocess.run([sys.executable, "-m", "stereojax.cli", *map(str, args)], cwd=ROOT, env=env,
+    return subprocess.run([sys.executable, "-m", "stereojax.app.cli", *map(str, args)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=timeout)
 
 

@@ -11,7 +11,7 @@ import pytest
 import stereojax
 from stereojax import StereoInputError
 from stereojax.data import io
-from stereojax.pipeline import check_disp_range, shift_right_image
+from stereojax.inference.predictor import check_disp_range, shift_right_image
 
 from .helpers import textured
 from .robustness_helpers import _cli, _one_line

@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 
 import stereojax
-from stereojax import ConfigError, losses
-from stereojax.nets import MatchNet, NetConfig, init_params, network_flops
-from stereojax.sampling import PatchData, SamplerConfig, sample_batch, sample_distill_batch
-from stereojax.train import TrainConfig, _pair_losses, fit, init_state, train_preset, train_step
+from stereojax import ConfigError
+from stereojax.learning import losses
+from stereojax.models.nets import MatchNet, NetConfig, init_params, network_flops
+from stereojax.learning.sampling import PatchData, SamplerConfig, sample_batch, sample_distill_batch
+from stereojax.learning.train import (TrainConfig, _pair_losses, fit, init_state, train_preset,
+                                      train_step)
 
 from .helpers import tiny_sampler as stereojax_sampler, training_samples as _samples
 
@@ -46,7 +48,7 @@ def test_near_miss_patches_lie_within_their_range_of_the_true_match():
 
 def test_distilled_loss_is_label_loss_plus_weighted_cross_entropy_to_the_teacher():
     samples = _samples(1)
-    from stereojax.sampling import build_patch_data
+    from stereojax.learning.sampling import build_patch_data
 
     cfg = train_preset("tiny", sampler=stereojax_sampler(), distill=0.7, distill_range=3.0, lr=1e-12)
     teacher_cfg = dataclasses.replace(cfg.net, widths=(16, 8), features=6)
@@ -84,7 +86,7 @@ def test_distillation_pulls_the_student_to_its_teacher(tmp_path):
     fit(plain, samples, None, tmp_path / "plain", progress=False)
     fit(distilled, samples, None, tmp_path / "distilled", progress=False, teacher=teacher)
 
-    from stereojax.sampling import build_patch_data
+    from stereojax.learning.sampling import build_patch_data
 
     data = build_patch_data(_samples(1, h=48, w=100), P, stereojax_sampler())
     patches = sample_distill_batch(jax.random.PRNGKey(99), data, 512, P, stereojax_sampler(), 6.0)
@@ -106,8 +108,8 @@ def test_distillation_needs_a_teacher_and_a_dense_unaugmented_student(tmp_path):
         fit(cfg, _samples(1), None, tmp_path, progress=False)
     with pytest.raises(ConfigError, match="teacher"):
         fit(dataclasses.replace(cfg, distill=0.0), _samples(1), None, tmp_path, progress=False,
-            teacher=stereojax.load_model(stereojax.models.shipped_weights("kitti2015")))
-    from stereojax.train import with_augmentation
+            teacher=stereojax.load_model(stereojax.models.registry.shipped_weights("kitti2015")))
+    from stereojax.learning.train import with_augmentation
     with pytest.raises(ConfigError, match="without patch augmentation"):
         with_augmentation(cfg)
     with pytest.raises(ConfigError, match="distill_range"):
@@ -126,7 +128,7 @@ def test_network_flops_by_hand():
 def test_train_cli_builds_a_compressed_network_and_records_its_teacher(tmp_path, data_root):
     import json
 
-    from stereojax.cli import main
+    from stereojax.app.cli import main
 
     teacher = tmp_path / "t"
     assert main(["train", "--data", str(data_root), "--frames", "000001", "--preset", "tiny",

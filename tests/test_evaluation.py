@@ -1,4 +1,4 @@
-"""The one evaluation loop (stereojax.evaluation.evaluate_frames) and the cached-volume path
+"""The one evaluation loop (stereojax.app.evaluation.evaluate_frames) and the cached-volume path
 of the Predictor (volume -> from_volume), which the chain search scores with."""
 
 import dataclasses
@@ -9,7 +9,7 @@ import pytest
 import stereojax
 from stereojax import metrics
 from stereojax.data.datasets import StereoSample
-from stereojax.evaluation import chain_method, evaluate_frames, format_table, sgbm_method
+from stereojax.app.evaluation import chain_method, evaluate_frames, format_table, sgbm_method
 
 from .helpers import shifted_pair, training_samples
 
@@ -97,8 +97,8 @@ def test_chain_and_sgbm_methods_on_a_shifted_pair():
 def test_volume_then_from_volume_equals_the_whole_chain():
     """What the chain search scores (cached volume, then the rest) is what the chain computes,
     for a classical and a learned cost and for changed back-end settings."""
-    from stereojax.nets import init_params, net_preset
-    from stereojax.learned_cost import LearnedModel
+    from stereojax.models.nets import init_params, net_preset
+    from stereojax.matching_cost.learned import LearnedModel
     import jax
 
     left, right = training_samples(1, h=40, w=72, d=4)[0].left, training_samples(1, h=40, w=72, d=4)[0].right

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from stereojax.data import io
-from stereojax.rectification import check_rectified
+from stereojax.data.rectification import check_rectified
 from tests.helpers import fake_kitti, shifted_pair, run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -141,12 +141,12 @@ def test_a_second_batch_on_a_held_folder_is_refused(tmp_path):
     out = tmp_path / "o"
     out.mkdir()
     holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path;"
-                               "from stereojax.outputs import folder_lock\n"
+                               "from stereojax.app.outputs import folder_lock\n"
                                f"with folder_lock(Path({str(out)!r})):\n    print('held', flush=True); time.sleep(60)"],
                               env=_env(tmp_path / "c"), stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "held"
-        r = subprocess.run([sys.executable, "-m", "stereojax.cli", "predict", str(left_dir), str(right_dir),
+        r = subprocess.run([sys.executable, "-m", "stereojax.app.cli", "predict", str(left_dir), str(right_dir),
                             "--out", str(out), *FAST], env=_env(tmp_path / "c"), capture_output=True, text=True,
                            timeout=300)
     finally:
@@ -160,7 +160,7 @@ def test_a_second_batch_on_a_held_folder_is_refused(tmp_path):
 
 
 def test_stale_staging_of_a_live_process_is_kept(tmp_path):
-    from stereojax.batch import remove_stale
+    from stereojax.app.batch import remove_stale
 
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
@@ -182,7 +182,7 @@ def test_two_identical_batches_started_together(tmp_path):
     after the first finished, finds every frame complete; no frame fails or is lost."""
     left_dir, right_dir = _folders(tmp_path, ["a", "b", "c"])
     out = tmp_path / "o"
-    cmd = [sys.executable, "-m", "stereojax.cli", "predict", str(left_dir), str(right_dir), "--out", str(out), *FAST]
+    cmd = [sys.executable, "-m", "stereojax.app.cli", "predict", str(left_dir), str(right_dir), "--out", str(out), *FAST]
     procs = [subprocess.Popen(cmd, env=_env(tmp_path / "c"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True) for _ in range(2)]
     results = [(p.wait(timeout=600), p.stderr.read()) for p in procs]
@@ -206,7 +206,7 @@ jax.monitoring.register_event_listener(lambda name, **kw: hits.append(name))
 from stereojax import compile_cache
 if sys.argv[1] == "readonly":
     compile_cache._writable = lambda folder: False
-from stereojax.cli import main
+from stereojax.app.cli import main
 code = main(sys.argv[2:])
 print(json.dumps({"code": code, "hits": hits.count("/jax/compilation_cache/cache_hits"),
                   "misses": hits.count("/jax/compilation_cache/cache_misses")}))
@@ -277,7 +277,7 @@ def test_single_pair_reuses_the_program_a_batch_compiled(tmp_path):
 
 
 def test_python_api_uses_the_persistent_cache(tmp_path):
-    code = ("import numpy as np, stereojax, jax; from stereojax import compile_cache;"
+    code = ("import numpy as np, stereojax, jax; from stereojax.inference import compile_cache;"
             "p = stereojax.Predictor(stereojax.preset('census', 16));"
             "print(compile_cache._enabled.get('dir'), jax.config.jax_compilation_cache_dir)")
     r = subprocess.run([sys.executable, "-c", code], env=_env(tmp_path / "pc"), capture_output=True, text=True,

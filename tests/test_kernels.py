@@ -4,9 +4,17 @@ import numpy as np
 import pytest
 import jax.numpy as jnp
 
-from stereojax import aggregation, cost, refine
+from stereojax.aggregation import cross_based as aggregation
+from stereojax.matching_cost import classical as cost
+from stereojax.disparity import right_view
+from stereojax.disparity import winner_takes_all
+from stereojax.filters import bilateral
+from stereojax.filters import median
+from stereojax.refinement import parabola
+from stereojax.validation import filling
+from stereojax.validation import left_right
 from stereojax.config import SGMConfig
-from stereojax.sgm import sgm
+from stereojax.optimization.semi_global import sgm
 
 from . import reference as ref
 
@@ -37,7 +45,7 @@ def test_census_right_view_is_skewed_left_view(pair):
     left, right = pair
     cl = np.asarray(cost.census_cost(jnp.asarray(left), jnp.asarray(right), 5, (1, 1), "left", "worst"))
     cr = np.asarray(cost.census_cost(jnp.asarray(left), jnp.asarray(right), 5, (1, 1), "right", "worst"))
-    np.testing.assert_allclose(cr, np.asarray(refine.right_cost_from_left(jnp.asarray(cl))), atol=1e-6)
+    np.testing.assert_allclose(cr, np.asarray(right_view.right_cost_from_left(jnp.asarray(cl))), atol=1e-6)
 
 
 @pytest.mark.parametrize("border", ["worst", "replicate"])
@@ -92,7 +100,7 @@ def test_sgm_with_zero_penalties_is_the_cost(pair):
 
 def test_wta_takes_first_minimum():
     vol = jnp.asarray(np.array([[[0.5, 0.1, 0.1, 0.9]]], np.float32))
-    assert int(refine.wta(vol)[0, 0]) == 1
+    assert int(winner_takes_all.wta(vol)[0, 0]) == 1
 
 
 def test_lr_check_and_fill_match_reference():
@@ -100,10 +108,10 @@ def test_lr_check_and_fill_match_reference():
     dl = rng.integers(0, 4, (6, 12)).astype(np.float32)
     dr = dl.copy()
     dr[rng.random(dl.shape) < 0.3] = rng.integers(0, 4)
-    labels = np.asarray(refine.lr_check(jnp.asarray(dl), jnp.asarray(dr), 4, 1.0))
+    labels = np.asarray(left_right.lr_check(jnp.asarray(dl), jnp.asarray(dr), 4, 1.0))
     np.testing.assert_array_equal(labels, ref.lr_check(dl, dr, 4, 1.0))
     assert set(np.unique(labels)) <= {0, 1, 2}
-    filled = np.asarray(refine.fill_disparity(jnp.asarray(dl), jnp.asarray(labels)))
+    filled = np.asarray(filling.fill_disparity(jnp.asarray(dl), jnp.asarray(labels)))
     np.testing.assert_allclose(filled, ref.fill(dl, labels), atol=1e-6)
 
 
@@ -117,7 +125,7 @@ def test_lr_check_matches_reference_with_right_disparities_out_of_range():
         grid = rng.random(dr.shape) < 0.5
         dr[grid] = np.round(dr[grid])
         for d in (5, 7):
-            got = np.asarray(refine.lr_check(jnp.asarray(dl), jnp.asarray(dr), d, 1.0))
+            got = np.asarray(left_right.lr_check(jnp.asarray(dl), jnp.asarray(dr), d, 1.0))
             np.testing.assert_array_equal(got, ref.lr_check(dl, dr, d, 1.0))
 
 
@@ -125,7 +133,7 @@ def test_lr_check_hand_case():
     # one row, width 6: left disparity 2 everywhere; right map agrees except at x = 1
     dl = np.full((1, 6), 2.0, np.float32)
     dr = np.array([[2, 0, 2, 2, 2, 2]], np.float32)
-    labels = np.asarray(refine.lr_check(jnp.asarray(dl), jnp.asarray(dr), 3, 0.0))
+    labels = np.asarray(left_right.lr_check(jnp.asarray(dl), jnp.asarray(dr), 3, 0.0))
     # x = 0, 1: the match x - 2 leaves the image. x = 0: D_R(0 - d') == d' has no solution
     # (D_R(0) = 2 != 0): occlusion. x = 1: D_R(1 - 0) = 0 == 0: mismatch.
     # x = 3: D_R(1) = 0 != 2 and D_R(3) = 2 != 0, D_R(2) = 2 != 1, D_R(1) = 0 != 2: occlusion.
@@ -136,25 +144,25 @@ def test_subpixel_matches_reference_and_recovers_parabola():
     rng = np.random.default_rng(6)
     vol = rng.random((5, 7, 6)).astype(np.float32)
     disp = np.argmin(vol, -1).astype(np.float32)
-    got = np.asarray(refine.subpixel(jnp.asarray(vol), jnp.asarray(disp)))
+    got = np.asarray(parabola.subpixel(jnp.asarray(vol), jnp.asarray(disp)))
     np.testing.assert_allclose(got, ref.subpixel(vol, disp), atol=1e-5)
     # an exact parabola with minimum at 2.3 is recovered exactly
     d = np.arange(6, dtype=np.float32)
     par = ((d - 2.3) ** 2)[None, None]
-    assert abs(float(refine.subpixel(jnp.asarray(par), jnp.asarray([[2.0]]))[0, 0]) - 2.3) < 1e-5
+    assert abs(float(parabola.subpixel(jnp.asarray(par), jnp.asarray([[2.0]]))[0, 0]) - 2.3) < 1e-5
 
 
 def test_median_matches_reference():
     img = np.random.default_rng(7).random((8, 9)).astype(np.float32)
     for size in (3, 5):
-        np.testing.assert_allclose(np.asarray(refine.median_filter(jnp.asarray(img), size)),
+        np.testing.assert_allclose(np.asarray(median.median_filter(jnp.asarray(img), size)),
                                    ref.median(img, size), atol=1e-7)
 
 
 def test_bilateral_matches_reference():
     rng = np.random.default_rng(8)
     disp, guide = rng.random((7, 8)).astype(np.float32) * 10, rng.random((7, 8)).astype(np.float32) * 255
-    got = np.asarray(refine.bilateral_filter(jnp.asarray(disp), jnp.asarray(guide), 2, 1.7, 30.0))
+    got = np.asarray(bilateral.bilateral_filter(jnp.asarray(disp), jnp.asarray(guide), 2, 1.7, 30.0))
     np.testing.assert_allclose(got, ref.bilateral(disp, guide, 2, 1.7, 30.0), atol=1e-5)
 
 
@@ -163,10 +171,10 @@ def test_sort8_sorts_every_input():
     every 0/1 input proves that it sorts any input (the 0-1 principle); random floats with ties
     and BIG too."""
     bits = (np.arange(256)[:, None] >> np.arange(8)[None, :]) & 1                    # [256, 8]
-    got = np.stack([np.asarray(a) for a in refine.sort8([jnp.asarray(bits[:, i]) for i in range(8)])], 1)
+    got = np.stack([np.asarray(a) for a in filling.sort8([jnp.asarray(bits[:, i]) for i in range(8)])], 1)
     np.testing.assert_array_equal(got, np.sort(bits, axis=1))
     rng = np.random.default_rng(3)
     x = rng.integers(0, 5, (100, 8)).astype(np.float32)
     x[rng.random(x.shape) < 0.2] = 1e9
-    got = np.stack([np.asarray(a) for a in refine.sort8([jnp.asarray(x[:, i]) for i in range(8)])], 1)
+    got = np.stack([np.asarray(a) for a in filling.sort8([jnp.asarray(x[:, i]) for i in range(8)])], 1)
     np.testing.assert_array_equal(got, np.sort(x, axis=1))

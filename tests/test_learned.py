@@ -7,9 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from stereojax import losses, learned_cost
-from stereojax.nets import MatchNet, init_params, net_preset
-from stereojax.sampling import PatchData, SamplerConfig, _cut, sample_batch
+from stereojax.learning import losses
+from stereojax.matching_cost import learned as learned_cost
+from stereojax.models.nets import MatchNet, init_params, net_preset
+from stereojax.learning.sampling import PatchData, SamplerConfig, _cut, sample_batch
 
 TINY = {h: dataclasses.replace(net_preset(h, 8), widths=tuple(6 for _ in net_preset(h, 8).widths))
         for h in ("downsize", "uniform", "cosine")}
@@ -68,7 +69,7 @@ def test_whole_image_features_equal_patch_features():
             patch = norm[y - 4: y + 5, x - 4: x + 5][None, :, :, None]
             f_patch = MatchNet(net).apply(v, patch, False, method=MatchNet.features)[0, 0, 0]
             np.testing.assert_allclose(np.asarray(feats[y, x]), np.asarray(f_patch), atol=1e-4)
-    from stereojax.pipeline import pad_to
+    from stereojax.inference.predictor import pad_to
 
     pl, pr = (jnp.asarray(pad_to(np.asarray(a), (32, 40))) for a in (left, right))
     gl, gr = learned_cost.tower_features(net, v, pl, pr, valid=jnp.array([20, 24]))
@@ -171,7 +172,7 @@ def test_chain_settings_travel_with_the_model(tmp_path):
 
     from stereojax import preset
     from stereojax.errors import ConfigError
-    from stereojax.models import chain_settings, learned_config, shipped_weights
+    from stereojax.models.registry import chain_settings, learned_config, shipped_weights
 
     src = shipped_weights("kitti2015")
     w = tmp_path / "m.msgpack"
@@ -182,7 +183,7 @@ def test_chain_settings_travel_with_the_model(tmp_path):
     assert cfg.sgm.p1 == 0.7 and cfg.refine.median_size == 3 and cfg.max_disp == 64
     assert cfg.sgm.p2 == preset("learned").sgm.p2 and cfg.cost == preset("learned", 64).cost
     # the CLI's --method learned runs the model's settings
-    from stereojax.models import resolve
+    from stereojax.models.registry import resolve
 
     assert resolve("learned", str(w), max_disp=64).config == cfg
     (tmp_path / "m.json").write_text(json.dumps({"chain": {"sgm": {"p7": 1}}}))

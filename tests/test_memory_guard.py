@@ -1,4 +1,4 @@
-"""The memory guard (stereojax.memory): calibrated estimate, refusal before allocating, the
+"""The memory guard (stereojax.inference.memory): calibrated estimate, refusal before allocating, the
 limit read from the argument, the environment or the available memory."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import stereojax
-from stereojax import (ConfigError, MemoryBudgetError, StereoError)
-from stereojax import memory
+from stereojax import ConfigError, MemoryBudgetError, StereoError
+from stereojax.inference import memory
 from stereojax.data import io
 
 from .robustness_helpers import _cli, _one_line, _record
@@ -53,7 +53,7 @@ def test_memory_estimate_of_a_banded_chain_counts_the_band():
 def test_memory_guard_refuses_a_4k_pair_before_allocating(monkeypatch):
     monkeypatch.delenv(memory.ENV_VAR, raising=False)
     monkeypatch.setattr(memory, "available_bytes", lambda: 16 * memory.GIB)
-    from stereojax import pipeline
+    from stereojax.inference import predictor as pipeline
 
     def never(*a, **k):
         raise AssertionError("the jitted chain must not run")
@@ -94,7 +94,7 @@ def test_memory_guard_refuses_a_4k_pair_before_allocating(monkeypatch):
 def test_memory_guard_cli_exit_6(tmp_path, capsys, monkeypatch):
     monkeypatch.delenv(memory.ENV_VAR, raising=False)
     monkeypatch.setattr(memory, "available_bytes", lambda: 16 * memory.GIB)
-    from stereojax import pipeline
+    from stereojax.inference import predictor as pipeline
 
     # the CLI compiles its chain through compiled_chain: refused before that, nothing compiles or runs
     monkeypatch.setattr(pipeline, "compiled_chain", lambda *a, **k: pytest.fail("chain compiled"))

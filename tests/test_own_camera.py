@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
-from stereojax.calibration import plausibility_warnings, read_calibration
+from stereojax.data.calibration import plausibility_warnings, read_calibration
 from stereojax.data import io
 from stereojax.data.datasets import Calibration, load_dataset
 from stereojax.errors import StereoInputError
-from stereojax.rectification import check_rectified
+from stereojax.data.rectification import check_rectified
 
 from .helpers import shifted_pair
 from .robustness_helpers import _cli
@@ -36,7 +36,7 @@ P_rect_03: 7.215377e+02 0.000000e+00 6.095593e+02 -3.395242e+02 0.000000e+00 7.2
 
 
 def _depth_at(calib: Calibration, d: float) -> float:
-    from stereojax.depth import disparity_to_depth
+    from stereojax.data.depth import disparity_to_depth
 
     return float(disparity_to_depth(np.full((2, 2), d, np.float32), calib.baseline, calib.focal, calib.doffs)[0, 0])
 

@@ -159,7 +159,7 @@ def test_the_learned_chains_keep_a_real_frame_inside_its_limits(data_root, name,
     """The learned chains (a card's two programs: bands, census candidates, head; and the head
     at every disparity of a 24-wide band, one program) with limits from the ground truth: inside
     them everywhere, and closer to the truth than without them."""
-    from stereojax import models
+    from stereojax.models import registry as models
     from stereojax.data.datasets import load_kitti2015
 
     sample = load_kitti2015(data_root / "kitti2015" / "training", "000001")

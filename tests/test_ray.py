@@ -62,7 +62,7 @@ def _inputs(root: Path, n: int, h=96, w=192):
 
 
 def _cmd(left, right, out, *extra):
-    return [sys.executable, "-m", "stereojax.cli", "predict", str(left), str(right), "--out", str(out), *FAST, *extra]
+    return [sys.executable, "-m", "stereojax.app.cli", "predict", str(left), str(right), "--out", str(out), *FAST, *extra]
 
 
 def _env(tmp_path):
@@ -165,7 +165,7 @@ def test_a_bad_pair_is_one_line_and_the_rest_completes(cluster, tmp_path):
 
 
 def test_worker_resources_always_fit_the_cluster():
-    from stereojax.ray_batch import worker_resources
+    from stereojax.app.ray_batch import worker_resources
 
     assert worker_resources(1, 0, 2) == {"num_cpus": 2.0}
     assert worker_resources(2, 0, 2) == {"num_cpus": 1.0}             # 2 x 2 CPUs would never be placed
@@ -197,7 +197,7 @@ def test_an_address_where_nothing_listens_is_one_line(tmp_path):
 
 def test_ray_is_not_imported_without_the_option(tmp_path):
     left, right = _inputs(tmp_path, 2)
-    code = ("import sys; from stereojax.cli import main; "
+    code = ("import sys; from stereojax.app.cli import main; "
             f"rc = main({[str(a) for a in _cmd(left, right, tmp_path / 'o')[3:]]!r}); "
             "print(rc, 'ray' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], env=_env(tmp_path), capture_output=True, text=True, timeout=300)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import stereojax
-from stereojax.baselines import sgbm_disparity
+from stereojax.app.baselines import sgbm_disparity
 from stereojax.data import load_kitti2012, load_kitti2015, load_middlebury
 from stereojax.metrics import evaluate
 
@@ -55,10 +55,10 @@ def test_sgbm_baseline_left_padding_helps(data_root):
 def test_shipped_kitti_model_classifies_validation_patches(data_root):
     import dataclasses
 
-    from stereojax import checkpoint
-    from stereojax.sampling import build_patch_data
-    from stereojax.models import shipped_weights
-    from stereojax.train import TrainConfig, eval_step
+    from stereojax.models import checkpoint
+    from stereojax.learning.sampling import build_patch_data
+    from stereojax.models.registry import shipped_weights
+    from stereojax.learning.train import TrainConfig, eval_step
 
     path = shipped_weights("kitti2015")
     model = stereojax.load_model(path)
@@ -72,7 +72,7 @@ def test_shipped_kitti_model_classifies_validation_patches(data_root):
 
 
 def test_learned_predict_with_shipped_weights(data_root, tmp_path):
-    from stereojax.cli import main
+    from stereojax.app.cli import main
 
     s = load_kitti2015(data_root / "kitti2015" / "training", "000021")
     import cv2

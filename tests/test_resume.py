@@ -38,7 +38,7 @@ def _pairs(folder: Path, n=N_FRAMES, h=96, w=160):
 
 
 def _cmd(left, right, out, *extra):
-    return [sys.executable, "-m", "stereojax.cli", "predict", str(left), str(right), "--out", str(out), *FAST, *extra]
+    return [sys.executable, "-m", "stereojax.app.cli", "predict", str(left), str(right), "--out", str(out), *FAST, *extra]
 
 
 def _complete(out: Path) -> list[str]:

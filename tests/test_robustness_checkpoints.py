@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from stereojax import CheckpointError
-from stereojax.cli import main
+from stereojax.app.cli import main
 
 from .helpers import fake_kitti as _fake_kitti
 from .robustness_helpers import _ckpt_step, _cli, _one_line, _subprocess_env
@@ -25,7 +25,7 @@ from .robustness_helpers import _ckpt_step, _cli, _one_line, _subprocess_env
 # ---- checkpoints -------------------------------------------------------------------------------
 
 def _shipped():
-    from stereojax.models import shipped_weights
+    from stereojax.models.registry import shipped_weights
 
     try:
         return shipped_weights("kitti2015")
@@ -92,7 +92,7 @@ def test_sigkill_training_repeatedly_then_resume_gives_the_uninterrupted_paramet
 
     out = tmp_path / "killed"
     ckpt = out / "checkpoint.msgpack"
-    cmd = [sys.executable, "-m", "stereojax.cli", *args, "--resume", "--out", str(out)]
+    cmd = [sys.executable, "-m", "stereojax.app.cli", *args, "--resume", "--out", str(out)]
     env = _subprocess_env(tmp_path)
     kills, prev = [], 0
     for attempt in range(6):

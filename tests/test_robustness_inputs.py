@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import stereojax
-from stereojax import (ConfigError, StereoInputError)
+from stereojax import ConfigError, StereoInputError
 from stereojax.data import io
 
 from .helpers import fake_kitti as _fake_kitti, shifted_pair as _shifted_pair

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 import stereojax
-from stereojax import learned_cost
-from stereojax.compile_cache import bucket_shape
+from stereojax.matching_cost import learned as learned_cost
+from stereojax.inference.compile_cache import bucket_shape
 from stereojax.config import CostConfig, StereoConfig
 from stereojax.data import load_kitti2015
-from stereojax.nets import init_params, net_preset
+from stereojax.models.nets import init_params, net_preset
 
 TINY = dataclasses.replace(net_preset("downsize", 8), widths=(6, 6, 6, 6))
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,7 +55,7 @@ def test_bucketed_census_chain_equals_unpadded_away_from_padding(data_root, h, w
 
 def test_bucketed_learned_chain_equals_unpadded_away_from_padding(data_root):
     left, right = _crop(data_root, 90, 250)
-    model = stereojax.load_model(stereojax.models.shipped_weights("kitti2015"))
+    model = stereojax.load_model(stereojax.models.registry.shipped_weights("kitti2015"))
     base = stereojax.preset("learned", 40)
     assert 0 < base.cost.unsure_share < 1 and base.cost.candidates > 0   # adaptive pruned mode by default
     exact = stereojax.disparity(left, right, base, params=model, bucket=False)
@@ -109,7 +109,7 @@ def test_fast_learned_chain_matches_exact_head_on_a_real_frame(data_root):
     s = load_kitti2015(data_root / "kitti2015" / "training", "000022")
     crop = (slice(235, 375), slice(300, 800))
     left, right, gt, valid = s.left[crop], s.right[crop], s.gt[crop], s.gt_valid[crop]
-    model = stereojax.load_model(stereojax.models.shipped_weights("kitti2015"))
+    model = stereojax.load_model(stereojax.models.registry.shipped_weights("kitti2015"))
     fast_cfg = stereojax.preset("learned", 96)
     exact_cfg = dataclasses.replace(fast_cfg, cost=dataclasses.replace(fast_cfg.cost, candidates=0))
     fast = stereojax.disparity(left, right, fast_cfg, params=model)
@@ -122,7 +122,7 @@ def test_fast_learned_chain_matches_exact_head_on_a_real_frame(data_root):
 
 def test_second_process_reads_the_compilation_cache(tmp_path):
     """A second process compiling the same chain finds it in STEREOJAX_CACHE_DIR."""
-    code = ("import numpy as np, stereojax, time; from stereojax import compile_cache, pipeline;"
+    code = ("import numpy as np, stereojax, time; from stereojax.inference import compile_cache, predictor as pipeline;"
             "compile_cache.enable(); cfg = stereojax.preset('census', 16);"
             "t = time.perf_counter(); pipeline.compiled_chain((48, 64), cfg); print(time.perf_counter() - t)")
     env = {**os.environ, "STEREOJAX_CACHE_DIR": str(tmp_path / "cache")}
@@ -140,7 +140,7 @@ def test_second_process_reads_the_compilation_cache(tmp_path):
 
 
 def test_cache_folder_follows_the_environment(tmp_path, monkeypatch):
-    from stereojax import compile_cache
+    from stereojax.inference import compile_cache
 
     monkeypatch.setenv("STEREOJAX_CACHE_DIR", str(tmp_path / "c"))
     assert compile_cache.cache_dir() == tmp_path / "c"
@@ -152,9 +152,9 @@ def test_cache_folder_follows_the_environment(tmp_path, monkeypatch):
 
 
 def test_inference_path_does_not_import_training(tmp_path):
-    code = ("import sys, stereojax, stereojax.cli, stereojax.models, stereojax.pipeline;"
-            "m = stereojax.load_model(stereojax.models.shipped_weights('kitti2015'));"
-            "print('stereojax.train' in sys.modules, 'optax' in sys.modules)")
+    code = ("import sys, stereojax, stereojax.app.cli, stereojax.models.registry, stereojax.inference.predictor;"
+            "m = stereojax.load_model(stereojax.models.registry.shipped_weights('kitti2015'));"
+            "print('stereojax.learning.train' in sys.modules, 'optax' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, check=True)
     assert out.stdout.split() == ["False", "False"], out.stdout
 
@@ -167,9 +167,9 @@ def test_a_second_model_of_the_same_shapes_never_runs_the_first_ones_weights():
 
     import jax
 
-    from stereojax.learned_cost import LearnedModel
-    from stereojax.nets import NetConfig, init_params
-    from stereojax.pipeline import Predictor
+    from stereojax.matching_cost.learned import LearnedModel
+    from stereojax.models.nets import NetConfig, init_params
+    from stereojax.inference.predictor import Predictor
 
     from .helpers import shifted_pair
 

@@ -1,4 +1,4 @@
-"""Large pairs in horizontal bands (stereojax.tiling): the bands tile the frame with context on
+"""Large pairs in horizontal bands (stereojax.inference.tiling): the bands tile the frame with context on
 both sides, the stitched disparity equals the whole-frame one away from the seams, and a pair
 that would not fit the memory limit runs in bands (or is refused with --tile off)."""
 
@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import stereojax
-from stereojax import memory
+from stereojax.inference import memory
 from stereojax.data import io
 from stereojax.metrics import evaluate
-from stereojax.tiling import SEAM_OVERLAP, bands, run_in_bands
+from stereojax.inference.tiling import SEAM_OVERLAP, bands, run_in_bands
 
 from .helpers import shifted_pair
 from .robustness_helpers import _cli

@@ -14,14 +14,14 @@ import pytest
 import stereojax
 from stereojax import CheckpointError, ConfigError
 from stereojax.errors import TrainingError
-from stereojax.train import TrainConfig, fit, train_preset
+from stereojax.learning.train import TrainConfig, fit, train_preset
 
 from .helpers import tiny_sampler as stereojax_sampler, tiny_train_config as _tiny, training_samples as _samples
 
 
 def _leaves(path):
-    from stereojax import checkpoint
-    from stereojax.train import init_state
+    from stereojax.models import checkpoint
+    from stereojax.learning.train import init_state
     cfg = TrainConfig.from_dict(checkpoint.read_config(path))
     state, _ = checkpoint.load(path, init_state(cfg))
     return jax.tree_util.tree_leaves(state)
@@ -51,7 +51,7 @@ _CHILD = """
 import sys, time, numpy as np
 sys.path.insert(0, {root!r})
 from tests.helpers import tiny_train_config as _tiny, training_samples as _samples
-from stereojax.train import fit
+from stereojax.learning.train import fit
 cfg = _tiny(steps=3000, checkpoint_every=50, log_every=50)
 fit(cfg, _samples(), None, {out!r}, progress=False, resume=True)
 """
@@ -71,8 +71,8 @@ def test_sigkill_mid_run_then_resume_gives_the_uninterrupted_parameters(tmp_path
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    from stereojax import checkpoint
-    from stereojax.train import TrainConfig, init_state
+    from stereojax.models import checkpoint
+    from stereojax.learning.train import TrainConfig, init_state
     killed_at = 0
     if ckpt.exists():
         cfg = TrainConfig.from_dict(checkpoint.read_config(ckpt))
@@ -149,7 +149,7 @@ def test_fit_from_init_starts_at_those_weights_and_refuses_another_network(tmp_p
     cfg = _tiny(steps=4, seed=1, lr=1e-12)
     fit(cfg, _samples(), None, tmp_path / "b", progress=False, init=a)
     b = stereojax.load_model(tmp_path / "b" / "checkpoint.msgpack")
-    fresh = stereojax.nets.init_params(cfg.net, jax.random.PRNGKey(1))
+    fresh = stereojax.models.nets.init_params(cfg.net, jax.random.PRNGKey(1))
     pa, pb = (jax.tree_util.tree_leaves(m.variables["params"]) for m in (a, b))
     assert max(float(np.abs(x - y).max()) for x, y in zip(pa, pb)) < 1e-6
     assert max(float(np.abs(x - y).max()) for x, y in zip(pa, jax.tree_util.tree_leaves(fresh["params"]))) > 1e-3

@@ -18,18 +18,18 @@ decides what to do. Missing or unreadable *images* raise
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from ..errors import StereoInputError
-from . import io
+from stereojax.data import io
+from stereojax.errors import ConfigError, StereoInputError
 
 __all__ = [
     "Calibration", "StereoSample", "load_pair", "list_kitti2015", "load_kitti2015",
@@ -70,7 +70,6 @@ class Calibration:
     @classmethod
     def from_options(cls, baseline: float | None, focal: float | None, doffs: float = 0.0) -> "Calibration | None":
         """The calibration of ``--baseline/--focal/--doffs`` (None when neither is given)."""
-        from ..errors import ConfigError
 
         if (baseline is None) != (focal is None):
             raise ConfigError("--baseline and --focal must be given together")

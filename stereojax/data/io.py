@@ -16,6 +16,7 @@ Conventions
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import secrets
 from pathlib import Path
@@ -24,7 +25,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from ..errors import OutputError, StereoError, StereoInputError
+from stereojax.errors import OutputError, StereoError, StereoInputError
 
 __all__ = [
     "atomic_output", "read_image", "read_pfm", "write_pfm", "read_kitti_disparity",
@@ -474,7 +475,6 @@ def json_default(obj):
 
 def write_json(path: PathLike, data) -> None:
     """Write ``data`` as indented JSON, atomically."""
-    import json
 
     with atomic_output(path) as tmp:
         Path(tmp).write_text(json.dumps(data, indent=2, sort_keys=True, default=json_default) + "\n")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import shlex
 from pathlib import Path
 
-from ..errors import StereoInputError
+from stereojax.errors import StereoInputError
 
 IMAGE_EXT = (".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".bmp", ".tif", ".tiff")
 # KITTI folder layouts, first match wins: (left view, right view, file pattern)

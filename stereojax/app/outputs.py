@@ -1,0 +1,132 @@
+"""Writing a prediction: disparity (KITTI 16-bit PNG, PFM, colour map) and, with a
+calibration, depth (PNG, npy) and a coloured point cloud; every file atomically."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from stereojax.data import depth as depth_mod, io
+from stereojax.errors import OutputBusyError, OutputError
+
+
+def output_folder(path) -> Path:
+    """Create the output folder and check that it is writable, before any long computation."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create output folder {path}: {exc.strerror}") from None
+    if not path.is_dir() or not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"output folder {path} is not writable")
+    return path
+
+
+LOCK_NAME = ".stereojax.lock"
+
+
+@contextmanager
+def folder_lock(folder: Path, command: str = "stereojax"):
+    """Hold the output folder's lock (``folder/.stereojax.lock``, an exclusive ``flock``) while
+    the block runs, as a database does before it writes: a second process on the same folder
+    gets :class:`~stereojax.errors.OutputBusyError` at once, naming the holder's PID. The
+    operating system releases the lock when its process dies, however it dies, so a killed run
+    never leaves the folder locked."""
+
+
+    path = Path(folder) / LOCK_NAME
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise OutputError(f"cannot create the lock file {path}: {exc.strerror}") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip() or "?"
+            raise OutputBusyError(f"output folder {folder} is in use by PID {holder} (another stereojax "
+                                  f"{command}); wait for it to finish or choose another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield path
+    finally:
+        os.close(fd)      # releases the lock
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this PID runs on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def color_scale(disp, gt=None, gt_valid=None) -> float:
+    """Disparity shown as the top colour: the largest true disparity when GT is known, else
+    the 99.5th percentile of the estimate (so a few outliers do not wash out the picture)."""
+    if gt is not None and gt_valid is not None and gt_valid.any():
+        return float(gt[gt_valid].max())
+    finite = np.asarray(disp)[np.isfinite(disp)]
+    return max(float(np.percentile(finite, 99.5)), 1.0) if finite.size else 1.0
+
+
+def blank_unconfident(disp, confidence, threshold: float):
+    """The disparity with every pixel whose confidence is below ``threshold`` set to +inf (no
+    estimate: 0 in KITTI PNGs and depth, inf in PFM, as Middlebury marks unknown pixels)."""
+    if not threshold:
+        return disp
+    return np.where(np.asarray(confidence) >= threshold, disp, np.inf).astype(np.float32)
+
+
+def write_confidence(out: Path, stem: str, confidence) -> list[str]:
+    """``confidence.npy`` (float32 in [0, 1]) and ``confidence.png`` (grey, 255 = 1)."""
+
+    conf = np.clip(np.asarray(confidence, np.float32), 0.0, 1.0)
+    io.write_png(out / f"{stem}confidence.png", np.round(conf * 255).astype(np.uint8))
+    with io.atomic_output(out / f"{stem}confidence.npy") as tmp:
+        np.save(tmp, conf)
+    return [f"{stem}confidence.png", f"{stem}confidence.npy"]
+
+
+def color_legend(top: float) -> dict:
+    """What ``disparity_color.png``'s colours mean (its sidecar ``disparity_color.json``): the
+    colour map, the disparities of its two ends in pixels, and the colour of "no estimate"."""
+    return {"image": "disparity_color.png", "colormap": "turbo", "unit": "px",
+            "min": 0.0, "max": round(top, 3), "clipped_above": True, "no_estimate": [0, 0, 0],
+            "note": "colour = colormap(d / max); disparities above max have the top colour"}
+
+
+def write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=False, color_max=None,
+                     max_depth: float | None = None):
+    """Write disparity (KITTI png, PFM, colour png and its scale ``disparity_color.json``) and,
+    with ``calib``, depth files; returns the written names. Pixels without an estimate (NaN,
+    inf, negative) are 0 in the PNGs and the depth; with ``max_depth``, so are points farther
+    than that (metres), and they are left out of points.ply."""
+
+    written = []
+    io.write_kitti_disparity(out / f"{stem}disparity.png", disp)
+    io.write_pfm(out / f"{stem}disparity.pfm", disp)
+    top = float(color_max or color_scale(disp))
+    io.write_color_disparity(out / f"{stem}disparity_color.png", disp, max_disp=top)
+    io.write_json(out / f"{stem}disparity_color.json", color_legend(top))
+    written += [f"{stem}disparity.png", f"{stem}disparity.pfm", f"{stem}disparity_color.png",
+                f"{stem}disparity_color.json"]
+    if calib is not None:
+        z = depth_mod.disparity_to_depth(disp, calib.baseline, calib.focal, calib.doffs)
+        if max_depth is not None:
+            z = np.where(z <= max_depth, z, 0.0).astype(np.float32)
+        depth_mod.write_depth(out / f"{stem}depth.png", z)
+        depth_mod.write_depth(out / f"{stem}depth.npy", z)
+        written += [f"{stem}depth.png", f"{stem}depth.npy"]
+        if ply and image is not None:
+            xyz, rgb = depth_mod.point_cloud(disp, image, calib, max_depth=max_depth)
+            depth_mod.write_ply(out / f"{stem}points.ply", xyz, rgb)
+            written.append(f"{stem}points.ply")
+    return written
