@@ -24,8 +24,8 @@ from common import (DEFAULT_DATA, QUICK_CROP, RESULTS, ROOT, load_sample, md_tab
 import stereojax  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
 from stereojax.metrics import evaluate  # noqa: E402
-from stereojax.models import load_model  # noqa: E402
-from stereojax.train import fit, train_preset, with_augmentation  # noqa: E402
+from stereojax.models.registry import load_model  # noqa: E402
+from stereojax.learning.train import fit, train_preset, with_augmentation  # noqa: E402
 
 TRAIN = [f"{i:06d}" for i in range(1, 16)]
 SELECT = [f"{i:06d}" for i in range(16, 21)]

@@ -12,7 +12,7 @@ import json
 import os
 from pathlib import Path
 
-from stereojax import bench
+from stereojax.app import bench
 from stereojax.data.datasets import DEFAULT_DATA
 
 RESULTS = Path(__file__).resolve().parent / "results"

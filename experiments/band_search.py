@@ -63,7 +63,7 @@ def frames_arg(text: str) -> list[str]:
 def chain_for(method: str, max_disp: int):
     if method in ("census", "sad"):
         return preset(method, max_disp), None
-    from stereojax.models import learned_config, load_model, shipped_weights
+    from stereojax.models.registry import learned_config, load_model, shipped_weights
 
     return learned_config(method, max_disp), load_model(shipped_weights(method))
 

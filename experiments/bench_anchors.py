@@ -79,8 +79,8 @@ def main():
     ap.add_argument("--out", default=str(ROOT / "experiments" / "results"))
     args = ap.parse_args()
 
-    from stereojax.baselines import sgbm_disparity
-    from stereojax.bench import learned_setup, sgbm_timings, warm_chain
+    from stereojax.app.baselines import sgbm_disparity
+    from stereojax.app.bench import learned_setup, sgbm_timings, warm_chain
     from stereojax.data import load_kitti2015
     from stereojax.data.io import atomic_output, write_json
     from stereojax.metrics import evaluate

@@ -32,13 +32,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 import stereojax  # noqa: E402
-from stereojax.baselines import sgbm_disparity  # noqa: E402
+from stereojax.app.baselines import sgbm_disparity  # noqa: E402
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset, search_range  # noqa: E402
 from stereojax.data.io import atomic_output, write_json  # noqa: E402
-from stereojax.evaluation import evaluate_frames  # noqa: E402
+from stereojax.app.evaluation import evaluate_frames  # noqa: E402
 from stereojax.metrics import mean_metrics  # noqa: E402
-from stereojax.models import load_model  # noqa: E402
-from stereojax.train import fit, train_preset  # noqa: E402
+from stereojax.models.registry import load_model  # noqa: E402
+from stereojax.learning.train import fit, train_preset  # noqa: E402
 
 RESULTS = ROOT / "experiments" / "results"
 RUNS = ROOT / "runs" / "experiments"
@@ -181,7 +181,7 @@ class Setup:
 
     def score(self, dataset: str, predict) -> dict:
         """Run ``predict(sample, max_disp) -> (disparity[, est_valid])`` on the test frames of
-        ``dataset`` (:func:`stereojax.evaluation.evaluate_frames`); returns per-frame and mean
+        ``dataset`` (:func:`stereojax.app.evaluation.evaluate_frames`); returns per-frame and mean
         KITTI measures and the warm seconds per frame (frames of a size seen before in this
         process; the first of each size compiles)."""
         result = evaluate_frames(self.samples("test", dataset), {"m": predict},

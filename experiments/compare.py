@@ -25,7 +25,7 @@ import time
 from common import LABELS, Setup, add_common_args, census_predict, md_table, sgbm_predict, write_outputs
 
 import stereojax
-from stereojax.models import load_model, shipped_weights
+from stereojax.models.registry import load_model, shipped_weights
 
 TABLE = {"kitti2012": "table3", "kitti2015": "table4"}
 NETWORKS = [("mccnn_fast", "MC-CNN-fast (cosine head, hinge loss)", "cosine", "hinge", 0.0),

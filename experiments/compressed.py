@@ -25,12 +25,12 @@ import numpy as np
 
 from common import QUICK_CROP, Setup, load_sample, add_common_args, md_table, write_outputs
 
-from stereojax.bench import warm_chain
-from stereojax.evaluation import chain_method, evaluate_frames, sgbm_method
+from stereojax.app.bench import warm_chain
+from stereojax.app.evaluation import chain_method, evaluate_frames, sgbm_method
 from stereojax.metrics import mean_metrics
-from stereojax.models import learned_config, load_model, shipped_weights
-from stereojax.nets import NetConfig, network_flops
-from stereojax.train import fit, train_preset
+from stereojax.models.registry import learned_config, load_model, shipped_weights
+from stereojax.models.nets import NetConfig, network_flops
+from stereojax.learning.train import fit, train_preset
 
 #: the candidates of the protocol: (name, tower feature maps, head widths, distilled)
 CANDIDATES = [
@@ -87,7 +87,7 @@ def chain_for(model_name_or_none, max_disp: int):
 
 
 def score(samples, predict, max_disp: int) -> dict:
-    """``predict(sample, max_disp)`` scored on the samples (:func:`stereojax.evaluation.evaluate_frames`)."""
+    """``predict(sample, max_disp)`` scored on the samples (:func:`stereojax.app.evaluation.evaluate_frames`)."""
     result = evaluate_frames(samples, {"m": predict}, max_disp)
     rows = [{"frame": r["frame"], **r["m"]} for r in result["frames"]]
     return {"mean": mean_metrics(rows), "frames": rows}
@@ -189,7 +189,7 @@ def main():
         f"{chosen['val'] if chosen else float('nan'):.2f} % against the limit {BEST_LIMIT:.2f} % for `best`: "
         f"{'becomes best' if becomes_best else 'does not become best'}.", "",
         "GFLOP: tower of both views, the head's split first layer per pixel and view, and the head "
-        "layers after it at every evaluated candidate (`stereojax.nets.network_flops`); the census "
+        "layers after it at every evaluated candidate (`stereojax.models.nets.network_flops`); the census "
         "candidate chain, CBCA and SGM are not network FLOP.",
     ])
     write_outputs(setup, "compressed", data, text)

@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 
 import stereojax
-from stereojax import refine
+from stereojax.validation import confidence_measure
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset, parse_frames
 from stereojax.data.io import write_json
-from stereojax.models import resolve
+from stereojax.models.registry import resolve
 
 FRACTIONS = np.arange(1, 11) / 10
 THRESHOLD = 3.0
@@ -47,7 +47,7 @@ def terms(st: dict, lr_tolerance: float) -> dict:
     import jax.numpy as jnp
 
     full = np.asarray(st["confidence"])
-    margin = np.asarray(refine.confidence(jnp.asarray(st["cost_final"]), jnp.asarray(st["disp_wta"]), None))
+    margin = np.asarray(confidence_measure.confidence(jnp.asarray(st["cost_final"]), jnp.asarray(st["disp_wta"]), None))
     lr = np.where(margin > 0, full / np.maximum(margin, 1e-12), 0.5)
     return {"confidence": full, "margin": margin, "left-right": lr}
 

@@ -26,13 +26,13 @@ import numpy as np
 from common import QUICK_CROP, Setup, add_common_args, load_sample, md_table, write_outputs
 from compressed import FRAMES, QUICK_FRAMES, TIE_POINTS, TIME_LIMIT_S, score
 
-from stereojax.bench import warm_chain
-from stereojax.dense_distill import cache_targets, load_targets
-from stereojax.evaluation import chain_method, evaluate_frames, sgbm_method
-from stereojax.images import as_grey
-from stereojax.models import learned_config, load_model, shipped_weights
-from stereojax.nets import NetConfig, network_flops
-from stereojax.train import fit, train_preset
+from stereojax.app.bench import warm_chain
+from stereojax.learning.dense_distill import cache_targets, load_targets
+from stereojax.app.evaluation import chain_method, evaluate_frames, sgbm_method
+from stereojax.data.images import as_grey
+from stereojax.models.registry import learned_config, load_model, shipped_weights
+from stereojax.models.nets import NetConfig, network_flops
+from stereojax.learning.train import fit, train_preset
 
 #: students: (name, tower maps, head widths, start from, learning rate[, tower layers (default 4)])
 STUDENTS = [

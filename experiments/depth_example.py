@@ -33,8 +33,8 @@ from common import QUICK_CROP, ROOT, Setup, add_common_args, md_table, shrink, w
 import stereojax
 from stereojax.data import load_kitti2015
 from stereojax.data.io import colorize_disparity, write_png
-from stereojax.depth import disparity_to_depth, point_cloud, write_ply
-from stereojax.models import load_model, shipped_weights
+from stereojax.data.depth import disparity_to_depth, point_cloud, write_ply
+from stereojax.models.registry import load_model, shipped_weights
 
 CALIB = """calib_time: 09-Jan-2012 13:57:47
 P_rect_02: 7.215377e+02 0.000000e+00 6.095593e+02 4.485728e+01 0.000000e+00 7.215377e+02 1.728540e+02 2.163791e-01 0.000000e+00 0.000000e+00 1.000000e+00 2.745884e-03

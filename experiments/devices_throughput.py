@@ -17,8 +17,8 @@ import jax  # noqa: E402
 from jax.sharding import NamedSharding, PartitionSpec  # noqa: E402
 
 from stereojax.data.datasets import DEFAULT_DATA
-from stereojax.sampling import build_patch_data  # noqa: E402
-from stereojax.train import init_state, make_mesh, train_preset, train_step  # noqa: E402
+from stereojax.learning.sampling import build_patch_data  # noqa: E402
+from stereojax.learning.train import init_state, make_mesh, train_preset, train_step  # noqa: E402
 
 
 def main(steps: int = 30, augment: bool = False, data: str = DEFAULT_DATA):
@@ -29,7 +29,7 @@ def main(steps: int = 30, augment: bool = False, data: str = DEFAULT_DATA):
     samples = [load_kitti2015(root, "000001")]
     cfg = train_preset("cpu")
     if augment:
-        from stereojax.train import with_augmentation
+        from stereojax.learning.train import with_augmentation
 
         cfg = with_augmentation(cfg)
     data = build_patch_data(samples, cfg.net.patch_size, cfg.sampler)

@@ -21,9 +21,9 @@ from common import QUICK_CROP, Setup, load_sample, add_common_args, md_table, sh
 
 import stereojax
 from stereojax.data.io import colorize_disparity, error_map, write_png
-from stereojax.depth import disparity_to_depth
+from stereojax.data.depth import disparity_to_depth
 from stereojax.metrics import evaluate
-from stereojax.models import load_model, shipped_weights
+from stereojax.models.registry import load_model, shipped_weights
 
 #: KITTI's rectified focal length and baseline (representative values, as in KITTI's own
 #: calib_cam_to_cam files of 2011_09_26: f = 721.5 px, B = 0.533 m, as in depth_example.py); the

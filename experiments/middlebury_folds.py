@@ -36,11 +36,11 @@ from search_chain import SPACE_SMALL as SPACE, cache_volumes, changes, coordinat
 import stereojax  # noqa: E402
 from stereojax.data.datasets import search_range  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
-from stereojax.evaluation import chain_method, evaluate_frames, sgbm_method  # noqa: E402
-from stereojax.dense_distill import cache_targets, load_targets  # noqa: E402
-from stereojax.images import as_grey  # noqa: E402
-from stereojax.models import load_model, shipped_weights, weights_path  # noqa: E402
-from stereojax.train import fit, train_preset  # noqa: E402
+from stereojax.app.evaluation import chain_method, evaluate_frames, sgbm_method  # noqa: E402
+from stereojax.learning.dense_distill import cache_targets, load_targets  # noqa: E402
+from stereojax.data.images import as_grey  # noqa: E402
+from stereojax.models.registry import load_model, shipped_weights, weights_path  # noqa: E402
+from stereojax.learning.train import fit, train_preset  # noqa: E402
 
 #: three folds, balanced by pixels; every scene is held out exactly once
 FOLDS = [["Aloe_opencv", "Venus_2001"],

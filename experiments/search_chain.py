@@ -25,12 +25,12 @@ import json
 import time
 from pathlib import Path
 
-from stereojax import pipeline
+from stereojax.inference import predictor as pipeline
 from stereojax.config import StereoConfig, preset
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset, parse_frames, search_range
 from stereojax.data.io import write_json
-from stereojax.evaluation import evaluate_frames
-from stereojax.models import learned_config, load_model, shipped_weights
+from stereojax.app.evaluation import evaluate_frames
+from stereojax.models.registry import learned_config, load_model, shipped_weights
 
 #: (section, field, values tried); the shipped value is always among the candidates
 SPACE = [

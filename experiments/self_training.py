@@ -33,9 +33,9 @@ import stereojax  # noqa: E402
 from stereojax.data.datasets import StereoSample, load_dataset, load_pair, search_range  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
 from stereojax.data.pairs import folder_pairs  # noqa: E402
-from stereojax.evaluation import chain_method, evaluate_frames, sgbm_method  # noqa: E402
-from stereojax.models import learned_config, load_model, weights_path  # noqa: E402
-from stereojax.train import fit, train_preset  # noqa: E402
+from stereojax.app.evaluation import chain_method, evaluate_frames, sgbm_method  # noqa: E402
+from stereojax.models.registry import learned_config, load_model, weights_path  # noqa: E402
+from stereojax.learning.train import fit, train_preset  # noqa: E402
 
 TEACHER = "kitti2015"
 KEYS = ("bad2", "bad3", "d1", "epe")

@@ -5,8 +5,8 @@ Command:  .venv/bin/python experiments/ship_weights.py RUN_DIR NAME [--chain SET
 --chain: the learned-chain settings for this model (StereoConfig overrides of
 preset("learned"), e.g. the "changes" that experiments/search_chain.py found), stored in
 NAME.json under "chain"; ``--method best`` and ``models.learned_config`` apply them.
-Writes stereojax/weights/NAME.msgpack (params + batch_stats + the training config) and
-stereojax/weights/NAME.json (config and training summary). Takes a second.
+Writes stereojax/models/weights/NAME.msgpack (params + batch_stats + the training config) and
+stereojax/models/weights/NAME.json (config and training summary). Takes a second.
 """
 
 import json
@@ -14,9 +14,9 @@ import sys
 from pathlib import Path
 
 
-from stereojax import checkpoint  # noqa: E402
+from stereojax.models import checkpoint  # noqa: E402
 from stereojax.data.io import write_json  # noqa: E402
-from stereojax.models import WEIGHTS_DIR, load_model  # noqa: E402
+from stereojax.models.registry import WEIGHTS_DIR, load_model  # noqa: E402
 
 
 def main():

@@ -30,12 +30,12 @@ import cv2
 import numpy as np
 
 import stereojax
-from stereojax.baselines import sgbm_disparity
+from stereojax.app.baselines import sgbm_disparity
 from stereojax.data.datasets import DEFAULT_DATA, load_builtin_sample, load_dataset
 from stereojax.data.io import write_json, write_png
 from stereojax.metrics import evaluate
-from stereojax.memory import memory_limit
-from stereojax.tiling import bands
+from stereojax.inference.memory import memory_limit
+from stereojax.inference.tiling import bands
 
 OVERLAPS = (0, 16, 32, 48, 64)
 ROWS = 160
@@ -83,7 +83,7 @@ def large(work: Path) -> list[dict]:
         out = work / f"out{mp:g}"
         before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-m", "stereojax.cli", "predict", str(lp), str(rp), "--out", str(out),
+        proc = subprocess.run([sys.executable, "-m", "stereojax.app.cli", "predict", str(lp), str(rp), "--out", str(out),
                                "--method", "census", "--max-disp", str(max_disp), "--check-rectified", "off"],
                               capture_output=True, text=True)
         wall = time.perf_counter() - t0

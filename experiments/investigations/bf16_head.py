@@ -28,7 +28,7 @@ CHILD = r"""
 import json, sys, time
 import jax, jax.numpy as jnp, numpy as np
 import stereojax
-from stereojax.models import shipped_weights
+from stereojax.models.registry import shipped_weights
 
 model = stereojax.load_model(shipped_weights("kitti2015"))
 head = model.variables["params"]["head"]

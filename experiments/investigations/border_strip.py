@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 
 import stereojax
-from stereojax.baselines import sgbm_disparity
-from stereojax.cost import neutral_border
+from stereojax.app.baselines import sgbm_disparity
+from stereojax.matching_cost.classical import neutral_border
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset, search_range
 from stereojax.data.io import write_json
 from stereojax.metrics import evaluate
-from stereojax.models import resolve
-from stereojax.pipeline import Volume
+from stereojax.models.registry import resolve
+from stereojax.inference.predictor import Volume
 
 FRAMES = [("kitti2015", "000001")] + [("middlebury", n) for n in
                                       ("Cones_2003Q", "Teddy_2003Q", "Reindeer_2006H", "Venus_2001", "Tsukuba_2001")]

@@ -14,7 +14,7 @@ import numpy as np
 
 
 import stereojax
-from stereojax.baselines import sgbm_disparity
+from stereojax.app.baselines import sgbm_disparity
 from stereojax.data import DEFAULT_DATA, io, load_kitti2015
 from stereojax.metrics import evaluate, interpolate_background
 

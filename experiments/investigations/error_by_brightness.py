@@ -16,11 +16,11 @@ import cv2
 import numpy as np
 
 import stereojax
-from stereojax.baselines import sgbm_disparity
+from stereojax.app.baselines import sgbm_disparity
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset, search_range
 from stereojax.data.io import write_json
-from stereojax.models import resolve
-from stereojax.pipeline import as_grey
+from stereojax.models.registry import resolve
+from stereojax.inference.predictor import as_grey
 
 FRAMES = [f"{i:06d}" for i in range(1, 20, 2)]
 BINS = (0, 20, 40, 70, 110, 256)

@@ -13,8 +13,8 @@ from pathlib import Path
 
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset
 from stereojax.data.io import write_json
-from stereojax.evaluation import chain_method, evaluate_frames
-from stereojax.models import learned_config, load_model, shipped_weights
+from stereojax.app.evaluation import chain_method, evaluate_frames
+from stereojax.models.registry import learned_config, load_model, shipped_weights
 
 OUT = Path(__file__).resolve().parents[1] / "results" / "exact_vs_pruned.json"
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import stereojax
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset
 from stereojax.data.io import write_json
-from stereojax.evaluation import chain_method, evaluate_frames
+from stereojax.app.evaluation import chain_method, evaluate_frames
 
 
 def main():

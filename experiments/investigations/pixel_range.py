@@ -23,9 +23,9 @@ import numpy as np
 
 import stereojax
 from stereojax.data.datasets import DEFAULT_DATA, load_kitti2015
-from stereojax.evaluation import evaluate_frames, sgbm_method
+from stereojax.app.evaluation import evaluate_frames, sgbm_method
 from stereojax.metrics import evaluate
-from stereojax.models import learned_config, load_model, shipped_weights
+from stereojax.models.registry import learned_config, load_model, shipped_weights
 
 OUT = Path(__file__).resolve().parents[1] / "results"
 FRAMES = [f"{i:06d}" for i in range(21, 26)]

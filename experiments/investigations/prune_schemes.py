@@ -24,12 +24,14 @@ import numpy as np
 import jax
 import jax.numpy as jnp
 
-from stereojax import chain, learned_cost as lc, pipeline
+from stereojax import chain
+from stereojax.matching_cost import learned as lc
+from stereojax.inference import predictor as pipeline
 from stereojax.config import BandConfig, preset
 from stereojax.data import DEFAULT_DATA, load_kitti2015
 from stereojax.metrics import evaluate
-from stereojax.models import load_model, shipped_weights
-from stereojax.nets import MatchNet
+from stereojax.models.registry import load_model, shipped_weights
+from stereojax.models.nets import MatchNet
 
 D, K = 228, 16
 CFG = preset("learned", D)

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 
-from stereojax import pipeline
+from stereojax.inference import predictor as pipeline
 from stereojax.config import StereoConfig
 from stereojax.data import DEFAULT_DATA, load_kitti2015
 from stereojax.metrics import evaluate
