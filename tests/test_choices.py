@@ -253,5 +253,5 @@ def test_licence_files_and_the_weights_terms():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     assert project["license"] == "MIT" and "LICENSE" in project["license-files"]
     assert "MIT License" in (ROOT / "LICENSE").read_text()
-    terms = (ROOT / "stereojax" / "weights" / "LICENSE.md").read_text()
+    terms = (ROOT / "stereojax" / "models" / "weights" / "LICENSE.md").read_text()
     assert "CC BY-NC-SA 3.0" in terms and "non-commercial" in terms.lower()

@@ -203,7 +203,7 @@ _PROBE = """
 import json, sys, jax
 hits = []
 jax.monitoring.register_event_listener(lambda name, **kw: hits.append(name))
-from stereojax import compile_cache
+from stereojax.inference import compile_cache
 if sys.argv[1] == "readonly":
     compile_cache._writable = lambda folder: False
 from stereojax.app.cli import main

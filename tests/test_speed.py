@@ -207,7 +207,7 @@ def test_a_batch_of_many_sizes_keeps_its_memory_maps_bounded(tmp_path):
     In a subprocess of its own, with the compile cache off, so that nothing else counts."""
     code = """
 import os, numpy as np, stereojax
-from stereojax import pipeline
+from stereojax.inference import predictor as pipeline
 maps = lambda: sum(1 for _ in open(f"/proc/{os.getpid()}/maps"))
 rng = np.random.default_rng(0)
 seen = []
