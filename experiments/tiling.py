@@ -1,13 +1,13 @@
-"""Large pairs in bands (issue "your own camera"): how much overlap the seams need, and the
+"""Large pairs in strips (issue "your own camera"): how much overlap the seams need, and the
 seconds per megapixel and peak memory of 2-6 MP pairs, beside OpenCV SGBM in the same run.
 
 1. Seams: KITTI 2015 training frames 000003 and 000021 (census chain, 228 disparities), whole
-   and in bands of 160 rows with overlaps 0-64: pixels that differ by > 0.5 px from the whole
+   and in strips of 160 rows with overlaps 0-64: pixels that differ by > 0.5 px from the whole
    frame, by distance to the nearest seam, and the > 3 px error of both (non-occluded GT).
 2. Large pairs: the built-in Motorcycle pair upscaled to about 3 and 6 MP (disparities scaled
    with it), `stereojax predict --method census` in a child process with the default memory
-   limit (the whole frame would not fit: it runs in bands), wall time, the chain's seconds, the
-   bands and the child's peak RSS; OpenCV StereoSGBM (left-padded) on the same pair, timed in
+   limit (the whole frame would not fit: it runs in strips), wall time, the chain's seconds, the
+   strips and the child's peak RSS; OpenCV StereoSGBM (left-padded) on the same pair, timed in
    this process.
 
 Command:  .venv/bin/python experiments/tiling.py [--data ../shared/data] [--out experiments/results]
@@ -35,7 +35,7 @@ from stereojax.data.datasets import DEFAULT_DATA, load_builtin_sample, load_data
 from stereojax.data.io import write_json, write_png
 from stereojax.metrics import evaluate
 from stereojax.inference.memory import memory_limit
-from stereojax.inference.tiling import bands
+from stereojax.inference.tiling import strips
 
 OVERLAPS = (0, 16, 32, 48, 64)
 ROWS = 160
@@ -53,14 +53,14 @@ def seams(data) -> list[dict]:
         b_whole = evaluate(whole, s.gt, s.gt_valid)["bad3"]
         for overlap in OVERLAPS:
             t0 = time.perf_counter()
-            tiled = predict.in_bands(s.left, s.right, ROWS, overlap)
+            tiled = predict.in_strips(s.left, s.right, ROWS, overlap)
             secs = time.perf_counter() - t0
-            cuts = np.array([b[3] for b in bands(h, ROWS, overlap)][:-1])
+            cuts = np.array([b[3] for b in strips(h, ROWS, overlap)][:-1])
             dist = np.abs(np.arange(h)[:, None] - cuts[None, :]).min(1)
             differ = np.abs(tiled - whole) > 0.5
             near = {f"{a}-{b}": float(100 * differ[(dist >= a) & (dist < b)].mean())
                     for a, b in ((0, 8), (8, 32), (32, 10 ** 6)) if ((dist >= a) & (dist < b)).any()}
-            rows.append({"frame": frame, "overlap": overlap, "bands": len(cuts) + 1, "seconds": secs,
+            rows.append({"frame": frame, "overlap": overlap, "strips": len(cuts) + 1, "seconds": secs,
                          "differ_pct": float(100 * differ.mean()), "differ_by_distance_pct": near,
                          "bad3_whole": b_whole, "bad3_tiled": evaluate(tiled, s.gt, s.gt_valid)["bad3"]})
             print(rows[-1], flush=True)
@@ -95,8 +95,8 @@ def large(work: Path) -> list[dict]:
         sgbm_disparity(left, right, num_disp=max_disp, pad=True)
         sgbm_s = time.perf_counter() - t0
         rows.append({"width": w, "height": h, "megapixels": w * h / 1e6, "max_disp": max_disp,
-                     "wall_s": wall, "chain_s": timings["seconds"], "bands": timings.get("bands", 1),
-                     "band_rows": timings.get("band_rows", h), "s_per_mp": timings["seconds"] / (w * h / 1e6),
+                     "wall_s": wall, "chain_s": timings["seconds"], "strips": timings.get("strips", 1),
+                     "strip_rows": timings.get("strip_rows", h), "s_per_mp": timings["seconds"] / (w * h / 1e6),
                      "peak_rss_gib": peak, "peak_rss_note": "the largest child so far" if before else "",
                      "sgbm_s": sgbm_s, "limit_gib": memory_limit()[0] / 2 ** 30})
         print(rows[-1], flush=True)
@@ -113,21 +113,21 @@ def main():
     seam = seams(args.data)
     out = Path(args.out)
     write_json(out / "tiling.json", {"seams": seam, "large": big, "rows": ROWS, "cpu_cores": os.cpu_count()})
-    lines = ["# Large pairs in bands", "",
-             f"## Seams (census chain, 228 disparities, bands of {ROWS} rows)", "",
+    lines = ["# Large pairs in strips", "",
+             f"## Seams (census chain, 228 disparities, strips of {ROWS} rows)", "",
              "Pixels whose stitched disparity differs from the whole frame's by > 0.5 px, by distance to the "
              "nearest seam, and the > 3 px error (non-occluded GT) whole and stitched.", "",
-             "| frame | overlap rows | bands | differ % (all) | 0-8 rows | 8-32 rows | ≥ 32 rows | > 3 px whole | > 3 px stitched |",
+             "| frame | overlap rows | strips | differ % (all) | 0-8 rows | 8-32 rows | ≥ 32 rows | > 3 px whole | > 3 px stitched |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in seam:
         d = r["differ_by_distance_pct"]
-        lines.append(f"| {r['frame']} | {r['overlap']} | {r['bands']} | {r['differ_pct']:.2f} | {d.get('0-8', 0):.2f} | "
+        lines.append(f"| {r['frame']} | {r['overlap']} | {r['strips']} | {r['differ_pct']:.2f} | {d.get('0-8', 0):.2f} | "
                      f"{d.get('8-32', 0):.2f} | {d.get('32-1000000', 0):.2f} | {r['bad3_whole']:.2f} | {r['bad3_tiled']:.2f} |")
     lines += ["", "## 3 and 6 MP pairs (`stereojax predict --method census`, default memory limit)", "",
-              "| size | MP | disparities | bands × rows | chain s | s / MP | process wall s | peak RSS GiB | limit GiB | SGBM s |",
+              "| size | MP | disparities | strips × rows | chain s | s / MP | process wall s | peak RSS GiB | limit GiB | SGBM s |",
               "|---|---|---|---|---|---|---|---|---|---|"]
     for r in big:
-        lines.append(f"| {r['width']}x{r['height']} | {r['megapixels']:.1f} | {r['max_disp']} | {r['bands']} × {r['band_rows']} | "
+        lines.append(f"| {r['width']}x{r['height']} | {r['megapixels']:.1f} | {r['max_disp']} | {r['strips']} × {r['strip_rows']} | "
                      f"{r['chain_s']:.1f} | {r['s_per_mp']:.1f} | {r['wall_s']:.1f} | {r['peak_rss_gib']:.2f} | "
                      f"{r['limit_gib']:.1f} | {r['sgbm_s']:.2f} |")
     lines += ["", "The built-in Motorcycle pair upscaled (bicubic), disparities scaled with it; peak RSS of the "

@@ -135,7 +135,7 @@ def test_limits_in_horizontal_bands_stay_inside():
     lo[:32] = 0
     hi[:32] = 4
     limits = pred.limits((lo, hi), left.shape)
-    out = pred.in_bands(left, right, rows=40, overlap=8, limits=limits)
+    out = pred.in_strips(left, right, rows=40, overlap=8, limits=limits)
     assert np.all(out >= lo) and np.all(out <= hi - 1)
     assert (np.abs(out[40:-6, 24:-12] - 9) < 1).mean() > 0.9
 

@@ -1,6 +1,6 @@
-"""Large pairs in horizontal bands (stereojax.inference.tiling): the bands tile the frame with context on
+"""Large pairs in horizontal strips (stereojax.inference.tiling): the strips tile the frame with context on
 both sides, the stitched disparity equals the whole-frame one away from the seams, and a pair
-that would not fit the memory limit runs in bands (or is refused with --tile off)."""
+that would not fit the memory limit runs in strips (or is refused with --tile off)."""
 
 import json
 from pathlib import Path
@@ -13,7 +13,7 @@ import stereojax
 from stereojax.inference import memory
 from stereojax.data import io
 from stereojax.metrics import evaluate
-from stereojax.inference.tiling import SEAM_OVERLAP, bands, run_in_bands
+from stereojax.inference.tiling import SEAM_OVERLAP, run_in_strips, strips
 
 from .helpers import shifted_pair
 from .robustness_helpers import _cli
@@ -23,12 +23,12 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 @settings(max_examples=200, deadline=None)
 @given(height=st.integers(1, 3000), rows=st.integers(8, 1200), overlap=st.integers(0, 100))
-def test_bands_tile_the_frame_with_context_on_both_sides(height, rows, overlap):
+def test_strips_tile_the_frame_with_context_on_both_sides(height, rows, overlap):
     if rows < height and rows - 2 * overlap < 1:
         with pytest.raises(ValueError):
-            bands(height, rows, overlap)
+            strips(height, rows, overlap)
         return
-    out = bands(height, rows, overlap)
+    out = strips(height, rows, overlap)
     assert out[0][2] == 0 and out[-1][3] == height
     for (s0, e0, k0, k1), nxt in zip(out, out[1:] + [None]):
         assert e0 - s0 == min(rows, height) and 0 <= s0 <= k0 < k1 <= e0 <= height
@@ -37,25 +37,25 @@ def test_bands_tile_the_frame_with_context_on_both_sides(height, rows, overlap):
             assert nxt[2] == k1                                    # kept rows follow on
 
 
-def test_stitching_takes_each_row_from_its_band():
+def test_stitching_takes_each_row_from_its_strip():
     left = np.arange(50 * 4, dtype=np.float32).reshape(50, 4)
     calls = []
 
     def predict(a, b):
         calls.append(a.shape[0])
         return a * 2, a + 1
-    disp, other = run_in_bands(predict, left, left, rows=20, overlap=5)
+    disp, other = run_in_strips(predict, left, left, rows=20, overlap=5)
     np.testing.assert_array_equal(disp, left * 2)
     np.testing.assert_array_equal(other, left + 1)
-    assert set(calls) == {20} and len(calls) == len(bands(50, 20, 5))
+    assert set(calls) == {20} and len(calls) == len(strips(50, 20, 5))
 
 
 @pytest.mark.skipif(not (DATA / "kitti2015").is_dir(), reason=f"real data not found at {DATA}")
 @pytest.mark.parametrize("banded,tolerance", [(False, 0.15), (True, 0.3)])
 def test_tiled_equals_whole_frame_away_from_the_seams_on_a_real_pair(banded, tolerance):
-    """Full range: within 0.15 points > 3 px (tiling.md). Banded: each band's coarse pass sees
-    only that band's rows, so its disparity bands differ near the seams; measured 0.19 points
-    on this pair with 160-row bands (2026-12-01), hence the wider tolerance."""
+    """Full range: within 0.15 points > 3 px (tiling.md). Banded: each strip's coarse pass sees
+    only that strip's rows, so its disparity bands differ near the seams; measured 0.19 points
+    on this pair with 160-row strips (2026-12-01), hence the wider tolerance."""
     import dataclasses
 
     from stereojax.config import BandConfig
@@ -68,9 +68,9 @@ def test_tiled_equals_whole_frame_away_from_the_seams_on_a_real_pair(banded, tol
     predict = stereojax.Predictor(cfg)
     whole = predict(s.left, s.right)
     rows = 160
-    tiled = predict.in_bands(s.left, s.right, rows)
+    tiled = predict.in_strips(s.left, s.right, rows)
     h = whole.shape[0]
-    seams = np.array([b[3] for b in bands(h, rows, SEAM_OVERLAP)][:-1])
+    seams = np.array([b[3] for b in strips(h, rows, SEAM_OVERLAP)][:-1])
     assert len(seams) >= 2
     dist = np.abs(np.arange(h)[:, None] - seams[None, :]).min(1)
     differ = np.abs(tiled - whole) > 0.5
@@ -82,7 +82,7 @@ def test_tiled_equals_whole_frame_away_from_the_seams_on_a_real_pair(banded, tol
     assert abs(evaluate(tiled, s.gt, s.gt_valid)["bad3"] - b_whole) < tolerance
 
 
-def test_a_pair_over_the_memory_limit_runs_in_bands_or_is_refused(tmp_path, capsys, monkeypatch):
+def test_a_pair_over_the_memory_limit_runs_in_strips_or_is_refused(tmp_path, capsys, monkeypatch):
     left, right = shifted_pair(6, h=256, w=320, seed=4)
     io.write_png(tmp_path / "l.png", left)
     io.write_png(tmp_path / "r.png", right)
@@ -95,11 +95,11 @@ def test_a_pair_over_the_memory_limit_runs_in_bands_or_is_refused(tmp_path, caps
     assert code == 6 and "needs about" in err
     code, out, err = _cli(argv + ["--out", tmp_path / "auto"], capsys)
     assert code == 0, err
-    assert "bands of" in out and "--tile off refuses it" in out          # what happens, and how to refuse
-    assert "bands: 100%" in err and ("band/s" in err or "s/band" in err)  # a progress bar with the rate
+    assert "strips of" in out and "--tile off refuses it" in out          # what happens, and how to refuse
+    assert "strips: 100%" in err and ("strip/s" in err or "s/strip" in err)  # a progress bar with the rate
     timings = json.loads((tmp_path / "auto" / "timings.json").read_text())
-    assert timings["bands"] >= 2 and timings["band_rows"] < 256
-    assert memory.chain_peak_bytes(timings["band_rows"], 320, cfg) <= (need - 0.04) * memory.GIB
+    assert timings["strips"] >= 2 and timings["strip_rows"] < 256
+    assert memory.chain_peak_bytes(timings["strip_rows"], 320, cfg) <= (need - 0.04) * memory.GIB
     disp = io.read_pfm(tmp_path / "auto" / "disparity.pfm")
     inner = disp[8:-8, 70:-20]
     assert np.mean(np.abs(inner - 6) <= 1) > 0.95

@@ -86,12 +86,6 @@ def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: f
 _RESULT_KEYS = ("outputs", "files", "timings", "size", "disp_range_used", "warnings")
 
 
-def is_complete(target: Path, record: dict, verify: bool = False) -> bool:
-    """Whether ``target`` holds a finished frame made with ``record``'s settings and inputs,
-    every file of it with its recorded size (and digest, with ``verify``)."""
-    return frame_problem(target, record, verify) is None
-
-
 def frame_problem(target: Path, record: dict, verify: bool = False) -> str | None:
     """None when ``target`` holds a finished frame made with ``record`` whose files pass
     :func:`stereojax.app.integrity.damaged`; else why not ("settings differ", or the damaged file)."""

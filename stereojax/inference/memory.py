@@ -82,11 +82,6 @@ VOLUMES_BANDED = 6.5
 FULL_VOLUMES_BANDED_SAD = 2.0
 
 
-def volume_disparities(config) -> int:
-    """The last axis of the chain's volumes: the band width K when banded, else D."""
-    return config.band.width if config.banded else config.max_disp
-
-
 def chain_peak_bytes(height: int, width: int, config, keep: bool = False) -> int:
     """Estimated peak memory (bytes) of the chain on an ``height × width`` frame: its volumes
     count ``H · W · K`` (K the band width; D for the full-range chain), plus the coarse pass's

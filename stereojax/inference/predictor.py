@@ -444,13 +444,13 @@ class Predictor:
         disparity MIN[y, x] <= d < MAX[y, x] (a prior from another sensor or an earlier frame),
         intersected with the predictor's range; banded chains move each band inside it."""
         limits = self.limits(pixel_range, np.shape(left))
-        rows = self.band_rows(left)
+        rows = self.strip_rows(left)
         if rows is not None:
-            return self.in_bands(left, right, rows, limits=limits)
+            return self.in_strips(left, right, rows, limits=limits)
         return self.run(*self.prepare(left, right), limits)
 
-    def band_rows(self, left) -> int | None:
-        """With ``tile="auto"``, the rows per band when the whole frame would not fit the memory
+    def strip_rows(self, left) -> int | None:
+        """With ``tile="auto"``, the rows per strip when the whole frame would not fit the memory
         limit (:mod:`stereojax.inference.tiling`); None when it is computed whole."""
 
         shape = np.shape(left)
@@ -459,28 +459,28 @@ class Predictor:
         h, w = shape[:2]
         if tiling.fits(h, w, self.config, self.memory_limit_gb):
             return None
-        return tiling.band_rows(h, w, self.config, self.memory_limit_gb)
+        return tiling.strip_rows(h, w, self.config, self.memory_limit_gb)
 
-    def in_bands(self, left, right, rows: int, overlap: int | None = None, on_band=None, limits=None):
-        """The pair in horizontal bands of ``rows`` rows, stitched (:func:`stereojax.inference.tiling.run_in_bands`);
-        ``limits`` (from :meth:`limits`) cut into the same bands."""
+    def in_strips(self, left, right, rows: int, overlap: int | None = None, on_strip=None, limits=None):
+        """The pair in horizontal strips of ``rows`` rows, stitched (:func:`stereojax.inference.tiling.run_in_strips`);
+        ``limits`` (from :meth:`limits`) cut into the same strips."""
 
-        return tiling.run_in_bands(lambda a, b, m=None: self.run(*self.prepare(a, b), m), left, right, rows,
-                                   tiling.SEAM_OVERLAP if overlap is None else overlap, on_band, limits)
+        return tiling.run_in_strips(lambda a, b, m=None: self.run(*self.prepare(a, b), m), left, right, rows,
+                                   tiling.SEAM_OVERLAP if overlap is None else overlap, on_strip, limits)
 
-    def _in_bands_shown(self, left, right, rows: int, n: int, phases, limits=None):
-        """:meth:`in_bands` with a progress bar over the bands (the time left) unless ``phases``
+    def _in_strips_shown(self, left, right, rows: int, n: int, phases, limits=None):
+        """:meth:`in_strips` with a progress bar over the strips (the time left) unless ``phases``
         is quiet; (disparity, seconds)."""
 
 
         h, w = np.shape(left)[:2]
         t0 = time.perf_counter()
         if phases.quiet:
-            return self.in_bands(left, right, rows, limits=limits), time.perf_counter() - t0
-        print(f"stereojax: computing the disparity of {w}x{h} in {n} bands of {rows} rows (the whole frame would "
+            return self.in_strips(left, right, rows, limits=limits), time.perf_counter() - t0
+        print(f"stereojax: computing the disparity of {w}x{h} in {n} strips of {rows} rows (the whole frame would "
               "not fit the memory limit; --tile off refuses it)", flush=True)
-        with tqdm(total=n, desc="bands", unit="band", file=sys.stderr, dynamic_ncols=True) as bar:
-            out = self.in_bands(left, right, rows, on_band=lambda: bar.update(1), limits=limits)
+        with tqdm(total=n, desc="strips", unit="strip", file=sys.stderr, dynamic_ncols=True) as bar:
+            out = self.in_strips(left, right, rows, on_strip=lambda: bar.update(1), limits=limits)
         return out, time.perf_counter() - t0
 
     def volume(self, left, right) -> Volume:
@@ -517,16 +517,14 @@ class Predictor:
         phases = phases or Phases(quiet=True)
         device = self.device
         limits = self.limits(pixel_range, np.shape(left))
-        rows = self.band_rows(left)
+        rows = self.strip_rows(left)
         if rows is not None:
-            from stereojax.inference.tiling import SEAM_OVERLAP, bands
-
             h, w = np.shape(left)[:2]
-            n = len(bands(h, rows, SEAM_OVERLAP))
-            out, secs = self._in_bands_shown(left, right, rows, n, phases, limits)
+            n = len(tiling.strips(h, rows, tiling.SEAM_OVERLAP))
+            out, secs = self._in_strips_shown(left, right, rows, n, phases, limits)
             shape = bucket_shape(rows, w)
             return out, {"seconds": secs, "compile_s": 0.0, "bucket": [int(shape[0]), int(shape[1])],
-                         "device": str(device), "bands": n, "band_rows": rows}
+                         "device": str(device), "strips": n, "strip_rows": rows}
         gl, gr = self.prepare(left, right)
         shape = bucket_shape(*gl.shape)
         compile_s = 0.0
