@@ -1,8 +1,19 @@
-"""Shared fixtures."""
+"""Shared fixtures, and the XLA flag the suite compiles with."""
 
+import os
 from pathlib import Path
 
 import pytest
+
+#: The suite is bound by compilation (each chain it runs is compiled once, 2-15 s on the CPU).
+#: It compiles with XLA:CPU's elemental emitters instead of the newer fusion emitters: about a
+#: third less compile time, and the same disparities bit for bit (tests/test_golden.py compares
+#: with maps made by the default compiler). Users' runs keep the default, whose programs run
+#: faster once compiled. Set here, before jax starts, so that every test process inherits it,
+#: the CLI subprocesses included; STEREOJAX_TEST_DEFAULT_XLA=1 runs the suite as users compile.
+TEST_XLA_FLAGS = "--xla_cpu_use_fusion_emitters=false"
+if not os.environ.get("STEREOJAX_TEST_DEFAULT_XLA") and TEST_XLA_FLAGS not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {TEST_XLA_FLAGS}".strip()
 
 #: ../shared/data from the project root (see /work/shared/data/README.md); never copied into the repo.
 DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -13,8 +24,6 @@ def _own_compile_cache(tmp_path_factory):
     """The suite's own persistent compile cache (STEREOJAX_CACHE_DIR, inherited by the CLI
     subprocesses and shared by the workers of ``pytest -n``): the tests never read or write the user's cache, nor one that another process
     (a training, a Ray worker) writes at the same time."""
-    import os
-
     if "STEREOJAX_CACHE_DIR" in os.environ:       # set by the caller: keep it
         yield
         return

@@ -108,7 +108,7 @@ def test_gt_both_scores_non_occluded_and_all_pixels_apart(tmp_path, capsys):
         assert both["pipeline (all)"][key] == runs["occ"]["mean"]["pipeline"][key]
     assert both["pipeline (all)"]["n_gt"] > both["pipeline (noc)"]["n_gt"]
     md = (tmp_path / "both" / "results.md").read_text()
-    assert "stereojax pipeline, non-occluded" in md and "stereojax pipeline, all pixels" in md
+    assert "stereojax census, non-occluded" in md and "stereojax census, all pixels" in md
 
 
 def test_gt_both_skips_frames_without_the_all_pixel_ground_truth(tmp_path, capsys):

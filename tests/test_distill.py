@@ -72,6 +72,7 @@ def test_distilled_loss_is_label_loss_plus_weighted_cross_entropy_to_the_teacher
     assert float(m["loss"]) == pytest.approx(want, rel=1e-5)
 
 
+@pytest.mark.slow
 def test_distillation_pulls_the_student_to_its_teacher(tmp_path):
     """A student distilled (heavily weighted) from a teacher ends closer to the teacher's
     similarities on unseen pairs than the same student trained on the labels alone."""

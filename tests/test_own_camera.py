@@ -126,6 +126,22 @@ def test_rectified_pair_passes_and_shifted_rotated_swapped_are_caught():
     assert "swapped" in check_rectified(right, left).problem
 
 
+def _negative_pair(shift: int = 60):
+    """KITTI 000021 cut so that its disparities fall by ``shift``: most of them become negative."""
+    left, right = _real_pair()
+    return left[:, shift:], right[:, :-shift]
+
+
+@needs_data
+def test_a_range_with_negative_disparities_is_not_taken_for_a_swapped_pair():
+    left, right = _negative_pair()
+    assert "swapped" in check_rectified(left, right).problem                   # a range from 0: swapped
+    assert check_rectified(left, right, min_disp=-96).problem is None          # allowed by the range
+    far = check_rectified(left, right, min_disp=-8).problem                    # the range allows too little
+    assert "more than 8 px to the right" in far and "lower the range's minimum" in far
+
+
+@pytest.mark.slow
 @needs_data
 def test_predict_warns_or_refuses_an_unrectified_pair(tmp_path, capsys):
     left, right = _real_pair()
@@ -138,3 +154,10 @@ def test_predict_warns_or_refuses_an_unrectified_pair(tmp_path, capsys):
     code, _, err = _cli(["predict", tmp_path / "r.png", tmp_path / "l.png", "--out", tmp_path / "e", *FAST,
                          "--max-disp", "64", "--check-rectified", "error"], capsys)
     assert code == 2 and "swapped" in err and not (tmp_path / "e" / "disparity.png").exists()
+    # mostly negative disparities, and a range that allows them: no advice to swap
+    left, right = _negative_pair()
+    io.write_png(tmp_path / "nl.png", left)
+    io.write_png(tmp_path / "nr.png", right)
+    code, _, err = _cli(["predict", tmp_path / "nl.png", tmp_path / "nr.png", "--out", tmp_path / "n", *FAST,
+                         "--disp-range", "-96", "32"], capsys)
+    assert code == 0 and "swapped" not in err, err

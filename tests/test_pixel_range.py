@@ -154,6 +154,7 @@ def test_bad_maps_are_refused_in_one_line(maps, msg):
     assert "\n" not in str(exc.value)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,dense", [("kitti2015", False), ("kitti2015_compact", True)])
 def test_the_learned_chains_keep_a_real_frame_inside_its_limits(data_root, name, dense):
     """The learned chains (a card's two programs: bands, census candidates, head; and the head

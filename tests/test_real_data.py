@@ -71,6 +71,7 @@ def test_shipped_kitti_model_classifies_validation_patches(data_root):
     assert float(err) < 0.15
 
 
+@pytest.mark.slow
 def test_learned_predict_with_shipped_weights(data_root, tmp_path):
     from stereojax.app.cli import main
 

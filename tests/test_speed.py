@@ -120,6 +120,7 @@ def test_fast_learned_chain_matches_exact_head_on_a_real_frame(data_root):
     assert abs(e_fast - e_exact) <= 1.5, (e_fast, e_exact)
 
 
+@pytest.mark.slow
 def test_second_process_reads_the_compilation_cache(tmp_path):
     """A second process compiling the same chain finds it in STEREOJAX_CACHE_DIR."""
     code = ("import numpy as np, stereojax, time; from stereojax.inference import compile_cache, predictor as pipeline;"
@@ -200,8 +201,9 @@ def test_a_second_model_of_the_same_shapes_never_runs_the_first_ones_weights():
         assert np.abs(out_second - out_first).max() > 0.5
 
 
+@pytest.mark.slow
 def test_a_batch_of_many_sizes_keeps_its_memory_maps_bounded(tmp_path):
-    """Frames of 12 size buckets in one process: the chains beyond the few kept are freed, with
+    """Frames of 8 size buckets in one process: the chains beyond the few kept are freed, with
     their machine code's memory maps (each census chain holds hundreds; a long batch of mixed
     sizes once grew without bound towards the kernel's vm.max_map_count and crashed in XLA).
     In a subprocess of its own, with the compile cache off, so that nothing else counts."""
@@ -211,7 +213,7 @@ from stereojax.inference import predictor as pipeline
 maps = lambda: sum(1 for _ in open(f"/proc/{os.getpid()}/maps"))
 rng = np.random.default_rng(0)
 seen = []
-for i in range(12):
+for i in range(8):
     left = rng.integers(0, 255, (48 + 16 * i, 96)).astype(np.uint8)
     stereojax.disparity(left, np.roll(left, -3, axis=1), stereojax.preset("census", 16))
     seen.append(maps())
@@ -224,5 +226,5 @@ print(pipeline._KEEP_PER_DEVICE, len(pipeline._COMPILED), *seen)
     assert kept == keep
     per_chain = (seen[keep - 1] - seen[0]) / (keep - 1)         # what one more compiled chain adds
     assert per_chain > 50                                        # the measure sees the chains at all
-    # after the first evictions the count stays near that of `keep` chains, not 12
+    # after the first evictions the count stays near that of `keep` chains, not 8
     assert max(seen[keep + 1:]) < seen[keep] + 2 * per_chain, seen

@@ -50,6 +50,7 @@ def test_stitching_takes_each_row_from_its_strip():
     assert set(calls) == {20} and len(calls) == len(strips(50, 20, 5))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (DATA / "kitti2015").is_dir(), reason=f"real data not found at {DATA}")
 @pytest.mark.parametrize("banded,tolerance", [(False, 0.15), (True, 0.3)])
 def test_tiled_equals_whole_frame_away_from_the_seams_on_a_real_pair(banded, tolerance):

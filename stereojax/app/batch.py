@@ -147,7 +147,8 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
         if disp_range is not None:
             early = early.with_max_disp(disp_range[1] - disp_range[0])
         check_size(h, w, early)
-    check = _check_rectified(sample, check_rectified, need=disp_range == "auto")
+    low = disp_range[0] if isinstance(disp_range, tuple | list) else 0
+    check = _check_rectified(sample, check_rectified, need=disp_range == "auto", min_disp=low)
     used = _disp_range(disp_range, check, sample.left.shape[1])
     if disp_range == "auto" and phases is not None and not getattr(phases, "quiet", False):
         print(f"disparity range auto: {used[0]} <= d < {used[1]} (from {check.matches} feature matches, "
@@ -186,13 +187,12 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
             "warnings": list(warned)}
 
 
-def _check_rectified(sample, mode: str, need: bool = False):
-    """The rectification check of a pair (None when off and not ``need``ed for an auto range)."""
-
-
+def _check_rectified(sample, mode: str, need: bool = False, min_disp: int = 0):
+    """The rectification check of a pair (None when off and not ``need``ed for an auto range);
+    ``min_disp``: the range's lowest disparity (a negative one allows matches to the right)."""
     if mode == "off" and not need:
         return None
-    check = check_rectified(sample.left, sample.right)
+    check = check_rectified(sample.left, sample.right, min_disp=min_disp)
     if check.skipped and mode != "off":
         warnings.warn(check.skipped, InputWarning, stacklevel=3)
     problem = check.problem if mode != "off" else None

@@ -167,7 +167,7 @@ def cmd_evaluate(args) -> int:
     items = load_dataset(args.data, args.dataset, frames=parse_frames(args.frames),
                          gt="occ" if args.gt == "both" else args.gt)
     run = _resolve(args, 0, 0, args.dataset)
-    print(f"method: {run.description}", file=sys.stderr)
+    print(f"stereojax: method: {run.chosen_line}", flush=True)
     evaluate_dataset(items, args.dataset, run, out, gt=args.gt, fill=args.fill, max_disp=args.max_disp,
                      sgbm=args.sgbm, devices=local_devices(args.devices), overwrite=args.overwrite,
                      verify=args.verify)

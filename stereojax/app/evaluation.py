@@ -199,24 +199,26 @@ def mean_rows(rows: list[dict], methods: list[str]) -> dict:
     return mean
 
 
-def _label(key: str) -> str:
+def _label(key: str, labels: Mapping[str, str]) -> str:
     """Table label of a row key: "pipeline" or "pipeline (all)" -> "stereojax pipeline, all pixels"."""
     for region, text in REGIONS.items():
         suffix = f" ({region})"
         if key.endswith(suffix):
             base = key[:-len(suffix)]
-            return f"{LABELS.get(base, base)}, {text}"
-    return LABELS.get(key, key)
+            return f"{labels.get(base, base)}, {text}"
+    return labels.get(key, key)
 
 
-def format_table(mean: Mapping[str, Mapping]) -> str:
-    """The means of :func:`evaluate_frames` as a markdown table, one row per method."""
+def format_table(mean: Mapping[str, Mapping], pipeline: str | None = None) -> str:
+    """The means of :func:`evaluate_frames` as a markdown table, one row per method; ``pipeline``
+    names the chain's row (e.g. "stereojax kitti2015", :attr:`Resolved.label`)."""
+    labels = {**LABELS, **({"pipeline": pipeline} if pipeline else {})}
     head = ("| method | >2 px % | >3 px % | >4 px % | >5 px % | D1 % | EPE px | density % "
             "| s/frame (warm) |")
     lines = [head, "|" + "---|" * (len(COLUMNS) + 1)]
     for name, m in mean.items():
         cells = ["n/a" if np.isnan(m[c]) else f"{m[c]:.2f}" for c in COLUMNS]
-        lines.append(f"| {_label(name)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {_label(name, labels)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -291,7 +293,7 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
                "reused": result["reused"],
                "config": run.with_max_disp(per_frame[0]["max_disp"]).config.to_dict()}
     io.write_json(out / "results.json", results)
-    table = format_table(result["mean"])
+    table = format_table(result["mean"], run.label)
     with io.atomic_output(out / "results.md") as tmp:
         Path(tmp).write_text(f"# {dataset}, {len(per_frame)} frames, {gt} GT, missing estimates: {fill}\n\n"
                              f"{table}\n")

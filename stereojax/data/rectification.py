@@ -5,7 +5,9 @@ matches) and filtered with RANSAC on the fundamental matrix. In a rectified pair
 its match lie on the same row, and the match in the right image lies at the same column or to
 the left (x_right = x_left - d, d >= 0). The check reports the vertical offset of the matches
 (median and the 90th percentile of its absolute value) and the share of matches that lie to
-the right, which, when most do, means left and right are swapped.
+the right, which, when most do, means left and right are swapped. When the disparity range
+allows negative disparities (``min_disp < 0``), a match that far to the right is expected: only
+matches to the right of what the range allows count then.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ import numpy as np
 #: unlabeled pairs of the shared data the 90th percentile reaches 0.83 px, none is flagged)
 MAX_ROW_OFFSET_PX = 1.0
 MAX_ROW_SPREAD_PX = 1.5
-#: more than this share of the matches to the right (x_right > x_left + 0.5) means swapped
+#: more than this share of the matches further right than the range allows (x_right > x_left + 0.5
+#: when the lowest disparity is 0) means swapped
 SWAPPED_SHARE = 0.5
 MIN_MATCHES = 20
 #: ORB needs its 31-pixel patch plus a border inside the image: smaller images are not checked
@@ -55,10 +58,12 @@ def _grey8(img) -> np.ndarray:
     return a.astype(np.uint8)
 
 
-def check_rectified(left, right, features: int = 3000) -> RectificationCheck:
+def check_rectified(left, right, features: int = 3000, min_disp: int = 0) -> RectificationCheck:
     """Check a pair (any image arrays ``[H, W]`` or ``[H, W, 3]``) with ORB matches and RANSAC;
     well under a second on a KITTI-sized pair. An image too small or too flat for feature
-    matching is not checked (``skipped`` says why); the check never raises on an image."""
+    matching is not checked (``skipped`` says why); the check never raises on an image.
+    ``min_disp``: the lowest disparity the run allows (``--disp-range MIN MAX``); below 0, matches
+    down to that disparity are not taken for a swapped pair."""
 
     gl, gr = _grey8(left), _grey8(right)
     small = min(*gl.shape[:2], *gr.shape[:2])
@@ -68,7 +73,7 @@ def check_rectified(left, right, features: int = 3000) -> RectificationCheck:
     if int(gl.max()) == int(gl.min()) or int(gr.max()) == int(gr.min()):
         return _skipped("an image is flat (one grey level): no features to match")
     try:
-        return _check(gl, gr, features)
+        return _check(gl, gr, features, min(int(min_disp), 0))
     except cv2.error as exc:       # the check must never end a run
         first = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         return _skipped(f"OpenCV could not match features ({first.strip()})")
@@ -79,7 +84,7 @@ def _skipped(why: str) -> RectificationCheck:
     return RectificationCheck(0, nan, nan, nan, None, skipped=f"rectification check skipped: {why}")
 
 
-def _check(gl, gr, features: int) -> RectificationCheck:
+def _check(gl, gr, features: int, lowest: int) -> RectificationCheck:
 
     orb = cv2.ORB_create(nfeatures=features)
 
@@ -103,16 +108,18 @@ def _check(gl, gr, features: int) -> RectificationCheck:
     dy = pr[:, 1] - pl[:, 1]
     dx = pr[:, 0] - pl[:, 0]
     median, p90 = float(np.median(dy)), float(np.percentile(np.abs(dy), 90))
-    share_right = float(np.mean(dx > 0.5))
+    share_right = float(np.mean(dx > 0.5 - lowest))        # disparity x_left - x_right below the range
+    d1, d99 = (float(v) for v in np.percentile(-dx, [1, 99]))
     problem = None
     if share_right > SWAPPED_SHARE:
-        problem = (f"left and right look swapped: {100 * share_right:.0f} % of {len(dx)} feature matches lie to "
-                   "the right in the right image (a rectified left view sees them further right); swap the two inputs")
+        where = "to the right" if lowest == 0 else f"more than {-lowest} px to the right (below the range's {lowest})"
+        problem = (f"left and right look swapped: {100 * share_right:.0f} % of {len(dx)} feature matches lie {where} "
+                   "in the right image (a rectified left view sees them further right); swap the two inputs"
+                   + ("" if lowest == 0 else f", or lower the range's minimum to about {math.floor(d1)}"))
     elif abs(median) > MAX_ROW_OFFSET_PX or p90 > MAX_ROW_SPREAD_PX:
         problem = (f"the pair does not look rectified: matched features lie up to {p90:.1f} px apart vertically "
                    f"(90th percentile of {len(dy)} matches; median {median:+.1f} px); rectify it first, e.g. with "
                    "OpenCV's stereoRectify and remap")
-    d1, d99 = (float(v) for v in np.percentile(-dx, [1, 99]))
     return RectificationCheck(len(dy), median, p90, share_right, problem, d1, d99)
 
 

@@ -179,6 +179,15 @@ class Resolved:
         return f"learned cost, {label}{head}"
 
     @property
+    def label(self) -> str:
+        """The short name of a results table's row, e.g. "stereojax kitti2015", "stereojax census"."""
+        if self.method != "learned":
+            return f"stereojax {self.method}"
+        name = shipped_name(self.weights)
+        head = ", exact head" if self.exact_head and not self.from_file else ""
+        return f"stereojax {name or Path(self.weights).name}{head}"
+
+    @property
     def chosen_line(self) -> str:
         """What runs and why, in one line (the first line ``predict`` prints)."""
         return f"{self.description} ({self.reason})" if self.reason else self.description
