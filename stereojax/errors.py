@@ -6,6 +6,13 @@ The CLI maps each class to a documented exit code and prints one line.
 """
 
 
+def wxh(shape) -> str:
+    """An image size as messages write it, width by height: ``(375, 1242)`` -> ``"1242x375"``;
+    a third axis (channels) follows, ``(375, 1242, 3)`` -> ``"1242x375x3"``."""
+    dims = [int(n) for n in shape]
+    return "x".join(map(str, dims[1::-1] + dims[2:])) if len(dims) >= 2 else "x".join(map(str, dims))
+
+
 class StereoError(Exception):
     """Base class of all errors stereojax raises on bad input."""
 

@@ -17,7 +17,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from stereojax.errors import StereoInputError
+from stereojax.errors import StereoInputError, wxh
 
 __all__ = ["interpolate_background", "evaluate", "mean_metrics"]
 
@@ -114,8 +114,7 @@ def evaluate(disp: np.ndarray, gt: np.ndarray, gt_valid: np.ndarray | None,
     if d.ndim != 2:
         raise StereoInputError(f"disparity must be a 2-D [H, W] array, found shape {d.shape}")
     if g.shape != d.shape:
-        raise StereoInputError(f"ground truth is {'x'.join(map(str, g.shape))} but the disparity is "
-                               f"{d.shape[0]}x{d.shape[1]}")
+        raise StereoInputError(f"ground truth is {wxh(g.shape)} but the disparity is {wxh(d.shape)}")
     if fill not in ("interpolate", "error"):
         raise StereoInputError(f"fill must be 'interpolate' or 'error', got {fill!r}")
     d = d.astype(np.float32, copy=False)

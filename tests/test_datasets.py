@@ -57,7 +57,7 @@ def test_load_pair(tmp_path):
 def test_load_pair_size_mismatch(tmp_path):
     io.write_png(tmp_path / "l.png", _img(0, (375, 1242)))
     io.write_png(tmp_path / "r.png", _img(1, (370, 1226)))
-    with pytest.raises(StereoInputError, match="left is 375x1242 but right is 370x1226"):
+    with pytest.raises(StereoInputError, match="left is 1242x375 but right is 1226x370"):
         ds.load_pair(tmp_path / "l.png", tmp_path / "r.png")
     with pytest.raises(StereoInputError, match="no such file"):
         ds.load_pair(tmp_path / "l.png", tmp_path / "missing.png")
@@ -96,7 +96,7 @@ def test_kitti2015_errors(tmp_path):
     with pytest.raises(StereoInputError, match="P_rect_02 with 12 values"):
         ds.load_kitti2015(root, "000003")
     io.write_png(root / "image_3" / "000007_10.png", _img(2, (H, W + 1, 3)))
-    with pytest.raises(StereoInputError, match=f"left is {H}x{W} but right is {H}x{W + 1}"):
+    with pytest.raises(StereoInputError, match=f"left is {W}x{H} but right is {W + 1}x{H}"):
         ds.load_kitti2015(root, "000007")
 
 

@@ -65,7 +65,7 @@ def test_point_cloud_by_hand():
 def test_point_cloud_errors():
     with pytest.raises(StereoInputError, match="calibration"):
         depth.point_cloud(np.ones((2, 2)), np.zeros((2, 2), np.uint8), None)
-    with pytest.raises(StereoInputError, match="image is 3x2x3"):
+    with pytest.raises(StereoInputError, match="image is 2x3x3"):
         depth.point_cloud(np.ones((2, 2)), np.zeros((3, 2, 3), np.uint8), Calibration(0.5, 100))
 
 

@@ -57,7 +57,7 @@ def test_one_row_pair_is_one_line_not_a_traceback(tmp_path, capsys):
                           capsys)
     assert code == 2 and "Traceback" not in err
     assert err.strip().splitlines() == [err.strip()]                      # one line: the refusal
-    assert err.startswith("stereojax predict: error: image is 1x150")
+    assert err.startswith("stereojax predict: error: image is 150x1")
 
 
 # ---- 2. resume checks what it keeps ------------------------------------------------------------------
@@ -157,6 +157,44 @@ def test_a_second_batch_on_a_held_folder_is_refused(tmp_path):
                                                  f"{holder.pid} (another stereojax predict); wait for it to finish "
                                                  "or choose another --out")
     assert not (out / "a").exists()
+    assert r.stdout == "", r.stdout               # refused before it says what it would run
+
+
+def test_the_lock_is_reentrant_and_its_file_goes_when_the_run_ends(tmp_path):
+    from stereojax.app.outputs import LOCK_NAME, folder_lock
+    from stereojax.errors import OutputBusyError
+
+    with folder_lock(tmp_path) as path:
+        with folder_lock(tmp_path):                   # the CLI's block, then the batch's
+            assert path.read_text().strip() == str(os.getpid())
+        assert path.exists()                          # the outer block still holds it
+        other = subprocess.run([sys.executable, "-c", "from pathlib import Path; from stereojax.app.outputs import "
+                                f"folder_lock\nwith folder_lock(Path({str(tmp_path)!r})): pass"],
+                               capture_output=True, text=True)
+        assert other.returncode != 0 and OutputBusyError.__name__ in other.stderr
+    assert not (tmp_path / LOCK_NAME).exists()
+    with pytest.raises(RuntimeError):                 # a failed block removes it too
+        with folder_lock(tmp_path):
+            raise RuntimeError
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / LOCK_NAME).write_text("12345\n")    # a killed run's file: taken over
+    with folder_lock(tmp_path) as path:
+        assert path.read_text().strip() == str(os.getpid())
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_single_pair_leaves_no_empty_output_folder(tmp_path, capsys):
+    from stereojax.app.cli import main
+
+    left, right = _folders(tmp_path, ["a"])
+    out = tmp_path / "new" / "o"
+    code = main(["predict", str(left / "a.png"), str(tmp_path / "missing.png"), "--out", str(out), *FAST])
+    assert code == 2 and "missing.png" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "new").exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()                                      # a folder the user made stays
+    assert main(["predict", str(left / "a.png"), str(tmp_path / "missing.png"), "--out", str(kept), *FAST]) == 2
+    assert kept.is_dir()
 
 
 def test_stale_staging_of_a_live_process_is_kept(tmp_path):

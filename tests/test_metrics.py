@@ -140,7 +140,7 @@ def test_evaluate_custom_thresholds_and_default_gt_valid():
 def test_evaluate_errors():
     with pytest.raises(StereoInputError, match="no ground-truth pixels"):
         metrics.evaluate(DISP, GT, np.zeros((2, 3), bool))
-    with pytest.raises(StereoInputError, match="ground truth is 3x2"):
+    with pytest.raises(StereoInputError, match="ground truth is 2x3"):
         metrics.evaluate(DISP, GT.T, GT_VALID)
     with pytest.raises(StereoInputError, match="fill must be"):
         metrics.evaluate(DISP, GT, GT_VALID, fill="zero")

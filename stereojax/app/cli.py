@@ -8,13 +8,15 @@ either the complete file or none.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import sys
 from pathlib import Path
 from typing import Sequence
 
-from stereojax.app.outputs import output_folder
+from stereojax import __version__
+from stereojax.app.outputs import folder_lock, output_folder, remove_if_empty
 from stereojax.data.datasets import DEFAULT_DATA, KITTI_MAX_DISP, parse_frames
 from stereojax.data.io import json_default as _json_default
 from stereojax.data.pairs import find_pairs
@@ -100,12 +102,9 @@ def _disp_range_arg(values):
 # ---- commands ----------------------------------------------------------------------------------
 
 def cmd_predict(args) -> int:
-    from stereojax.app.batch import pair_line, predict_batch, predict_pair, summary_line
-    from stereojax.data.pairs import unmatched_line
     from stereojax.devices import local_devices
     from stereojax.errors import ConfigError
     from stereojax.inference.compile_cache import enable
-    from stereojax.progress import Phases
 
     pairs, batch = find_pairs(args.inputs, args.pairs)
     if args.ray and batch:       # before JAX starts its threads: a local cluster forks its processes
@@ -122,6 +121,16 @@ def cmd_predict(args) -> int:
         raise ConfigError("--max-depth needs a calibration for depth: give --calib FILE, or --baseline and --focal")
     out = output_folder(args.out)
     enable()
+    # a batch takes the folder's lock first: a refused second batch says nothing else
+    with folder_lock(out, "predict") if batch else contextlib.nullcontext():
+        return _predict(args, pairs, batch, out, devices, calib, calib_line)
+
+
+def _predict(args, pairs, batch, out, devices, calib, calib_line) -> int:
+    from stereojax.app.batch import pair_line, predict_batch, predict_pair, summary_line
+    from stereojax.data.pairs import unmatched_line
+    from stereojax.errors import ConfigError
+    from stereojax.progress import Phases
 
     opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified,
                 tile=args.tile, disp_range=_disp_range_arg(args.disp_range), max_depth=args.max_depth)
@@ -228,8 +237,22 @@ def _unit(text: str) -> float:
 
 # ---- entry point -------------------------------------------------------------------------------
 
+class _Formatter(argparse.HelpFormatter):
+    """argparse's help, except that ``--disp-range`` reads ``MIN MAX | auto`` (not the repeated
+    ``MIN MAX|auto [MIN MAX|auto ...]`` that its one-or-more values would show)."""
+
+    def _format_args(self, action, default_metavar):
+        if action.dest == "disp_range":
+            return "MIN MAX | auto"
+        return super()._format_args(action, default_metavar)
+
+
 class _OneLineParser(argparse.ArgumentParser):
     """Usage errors (unknown option, ``--max-disp 1.5``) as one line on stderr, exit code 2."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
@@ -243,8 +266,11 @@ def _warning_printer(command: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _OneLineParser(prog="stereojax", description="Stereo matching in JAX: disparity and depth "
-                                "from a rectified pair (census/SAD cost, CBCA, SGM, refinement).")
+    p = _OneLineParser(prog="stereojax", description="Stereo matching in JAX: disparity and depth from a "
+                       "rectified pair. The matching cost is learned (an MC-CNN-style network, shipped "
+                       "models for KITTI and Middlebury) or classical (census, SAD); then cross-based "
+                       "aggregation, semi-global matching and refinement.")
+    p.add_argument("--version", action="version", version=f"stereojax {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     def add_method(sp):
@@ -277,7 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--max-disp", type=int, help="number of disparities searched, 0 <= d < N (default: a --config "
                     "file's max_disp, else 228 = KITTI's; see the README on choosing it; given beside --config, "
                     "this one wins)")
-    sp.add_argument("--disp-range", nargs="+", metavar="MIN MAX|auto", help="search the disparities MIN <= d < MAX "
+    sp.add_argument("--disp-range", nargs="+", help="search the disparities MIN <= d < MAX "
                     "instead of 0 .. max-disp - 1 (MIN may be negative); auto: from the feature matches of the "
                     "rectification check, printed and written to frame.json")
     sp.add_argument("--baseline", type=float, help="baseline in metres (for depth)")
@@ -387,6 +413,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return args.func(args)
     except StereoError as exc:
         print(f"stereojax {args.command}: error: {exc}", file=sys.stderr)
+        remove_if_empty()              # a run that failed before its first output leaves no folder
         return exc.exit_code
     except Interrupted as exc:
         note = getattr(exc, "note", None)

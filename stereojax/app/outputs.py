@@ -15,18 +15,42 @@ from stereojax.errors import OutputBusyError, OutputError
 
 
 def output_folder(path) -> Path:
-    """Create the output folder and check that it is writable, before any long computation."""
+    """Create the output folder and check that it is writable, before any long computation.
+    A folder made here is remembered (:func:`remove_if_empty`): a run that fails before writing
+    anything leaves no empty folder behind."""
     path = Path(path)
+    missing = [p for p in (path, *path.parents) if not p.exists()]
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"cannot create output folder {path}: {exc.strerror}") from None
     if not path.is_dir() or not os.access(path, os.W_OK | os.X_OK):
         raise OutputError(f"output folder {path} is not writable")
+    _CREATED.update(p.resolve() for p in missing)
     return path
 
 
+#: output folders this process created (:func:`output_folder`)
+_CREATED: set[Path] = set()
+
+
+def remove_if_empty() -> list[Path]:
+    """Remove the output folders this process created that are still empty (a run that failed
+    before its first output); returns them."""
+    gone = []
+    for path in sorted(_CREATED, key=lambda p: -len(p.parts)):
+        try:
+            path.rmdir()             # only an empty folder goes
+            gone.append(path)
+        except OSError:
+            pass
+    _CREATED.clear()
+    return gone
+
+
 LOCK_NAME = ".stereojax.lock"
+#: the folders whose lock this process holds, with how many blocks hold it (re-entrant)
+_HELD: dict[Path, int] = {}
 
 
 @contextmanager
@@ -35,26 +59,54 @@ def folder_lock(folder: Path, command: str = "stereojax"):
     the block runs, as a database does before it writes: a second process on the same folder
     gets :class:`~stereojax.errors.OutputBusyError` at once, naming the holder's PID. The
     operating system releases the lock when its process dies, however it dies, so a killed run
-    never leaves the folder locked."""
-
-
+    never leaves the folder locked. A run that ends (done, failed or interrupted) removes the
+    file; only a killed one leaves it, and the next run takes it over. Re-entrant: a block inside
+    another on the same folder (the CLI's, then the batch's) holds the same lock."""
+    key = Path(folder).resolve()
+    if key in _HELD:
+        _HELD[key] += 1
+        try:
+            yield Path(folder) / LOCK_NAME
+        finally:
+            _HELD[key] -= 1
+        return
     path = Path(folder) / LOCK_NAME
+    fd = _take_lock(path, folder, command)
+    _HELD[key] = 1
     try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as exc:
-        raise OutputError(f"cannot create the lock file {path}: {exc.strerror}") from None
-    try:
+        yield path
+    finally:
+        del _HELD[key]
+        try:
+            os.unlink(path)  # while still locked: a process that opened this file before now
+        except OSError:      # finds it gone once it holds the lock, and opens a fresh one
+            pass
+        os.close(fd)         # releases the lock
+
+
+def _take_lock(path: Path, folder, command: str) -> int:
+    """An open descriptor of ``path`` that holds its exclusive lock (OutputBusyError if taken)."""
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise OutputError(f"cannot create the lock file {path}: {exc.strerror}") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip() or "?"
+            os.close(fd)
             raise OutputBusyError(f"output folder {folder} is in use by PID {holder} (another stereojax "
                                   f"{command}); wait for it to finish or choose another --out") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        yield path
-    finally:
-        os.close(fd)      # releases the lock
+        try:
+            current = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            current = False
+        if current:                  # not a file its last holder removed after we opened it
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+            return fd
+        os.close(fd)
 
 
 def pid_alive(pid: int) -> bool:

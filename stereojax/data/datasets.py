@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 
 from stereojax.data import io
-from stereojax.errors import ConfigError, StereoInputError
+from stereojax.errors import ConfigError, StereoInputError, wxh
 
 __all__ = [
     "Calibration", "StereoSample", "load_pair", "list_kitti2015", "load_kitti2015",
@@ -120,7 +120,7 @@ class StereoSample:
 # ---- helpers -----------------------------------------------------------------------------------
 
 def _size(img: np.ndarray) -> str:
-    return f"{img.shape[0]}x{img.shape[1]}"
+    return wxh(img.shape[:2])
 
 
 def _check_pair(left: np.ndarray, right: np.ndarray) -> None:
@@ -225,7 +225,7 @@ def load_pair(left_path: PathLike, right_path: PathLike) -> StereoSample:
 
     Raises:
         StereoInputError: an image cannot be read, or the two sizes differ
-            ("left is 375x1242 but right is 370x1226; ...").
+            ("left is 1242x375 but right is 1226x370; ...").
     """
     left, right = io.read_image(left_path), io.read_image(right_path)
     _check_pair(left, right)

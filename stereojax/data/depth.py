@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from stereojax.data.io import atomic_output
-from stereojax.errors import OutputError, StereoInputError
+from stereojax.errors import OutputError, StereoInputError, wxh
 
 __all__ = ["disparity_to_depth", "write_depth", "point_cloud", "write_ply"]
 
@@ -124,8 +124,8 @@ def point_cloud(disp: np.ndarray, image: np.ndarray, calib, min_disp: float = 0.
     d = _disp2d(disp)
     img = np.asarray(image)
     if img.shape[:2] != d.shape or not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] in (1, 3, 4))):
-        raise StereoInputError(f"image is {'x'.join(map(str, img.shape))} but the disparity is "
-                               f"{d.shape[0]}x{d.shape[1]}; expected [H, W] or [H, W, 3] of that size")
+        raise StereoInputError(f"image is {wxh(img.shape)} but the disparity is "
+                               f"{wxh(d.shape)}; expected [H, W] or [H, W, 3] of that size")
     z = disparity_to_depth(d, calib.baseline, calib.focal, getattr(calib, "doffs", 0.0), min_disp)
     h, w = d.shape
     cx = getattr(calib, "cx", None)

@@ -25,7 +25,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from stereojax.errors import OutputError, StereoError, StereoInputError
+from stereojax.errors import OutputError, StereoError, StereoInputError, wxh
 
 __all__ = [
     "atomic_output", "read_image", "read_pfm", "write_pfm", "read_kitti_disparity",
@@ -259,7 +259,7 @@ def read_kitti_disparity(path: PathLike) -> tuple[np.ndarray, np.ndarray]:
     p = Path(path)
     img = _decode(_read_bytes(p, "KITTI disparity"), p, "KITTI disparity")
     if img.dtype != np.uint16 or img.ndim != 2:
-        shape = "x".join(map(str, img.shape))
+        shape = wxh(img.shape)
         raise StereoInputError(f"{p} is not a KITTI disparity map: expected a uint16 single-channel "
                                f"PNG, found {img.dtype} {shape}")
     valid = img > 0
@@ -452,8 +452,7 @@ def _as_disp(a, name: str, shape: tuple[int, ...] | None = None) -> np.ndarray:
             or arr.dtype == bool):
         raise StereoInputError(f"{name} must be numeric, found dtype {arr.dtype}")
     if shape is not None and arr.shape != tuple(shape):
-        raise StereoInputError(f"{name} is {arr.shape[0]}x{arr.shape[1]} but the disparity is "
-                               f"{shape[0]}x{shape[1]}")
+        raise StereoInputError(f"{name} is {wxh(arr.shape)} but the disparity is {wxh(shape)}")
     return arr.astype(np.float32, copy=False)
 
 

@@ -199,7 +199,7 @@ def check_memory(height: int, width: int, config, limit_gb=None, keep: bool = Fa
     per_disp = volumes(config, keep) * height * width * 4
     if config.banded:
         raise MemoryBudgetError(
-            f"a {height}x{width} frame with {config.max_disp} disparities in bands of {config.band.width} "
+            f"a {width}x{height} frame with {config.max_disp} disparities in bands of {config.band.width} "
             f"needs about {need / GIB:.1f} GiB, more than the limit of {limit / GIB:.1f} GiB ({source}); "
             f"use narrower bands (band.width), downscale the pair, or set {ENV_VAR} to raise the limit")
     fit_disp = int((limit - OVERHEAD) // per_disp) if limit > OVERHEAD else 0
@@ -212,7 +212,7 @@ def check_memory(height: int, width: int, config, limit_gb=None, keep: bool = Fa
     hint = (f"use a smaller maximum disparity (--max-disp / max_disp; at most {fit_disp} fits)" if fit_disp >= 1
             else "no disparity range fits at this size")
     raise MemoryBudgetError(
-        f"a {height}x{width} frame with {config.max_disp} disparities needs about "
+        f"a {width}x{height} frame with {config.max_disp} disparities needs about "
         f"{need / GIB:.1f} GiB for the {what} ({volumes(config, keep):g} f32[H, W, D] volumes of "
         f"{height * width * config.max_disp * 4 / GIB:.2f} GiB), more than the limit of "
         f"{limit / GIB:.1f} GiB ({source}); {hint}, or downscale the pair by {scale} "

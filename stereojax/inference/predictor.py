@@ -24,7 +24,7 @@ from tqdm import tqdm
 from stereojax import chain as chain_mod
 from stereojax.config import StereoConfig, preset
 from stereojax.data.images import as_grey, pair_float_scale
-from stereojax.errors import ConfigError, StereoInputError
+from stereojax.errors import ConfigError, StereoInputError, wxh
 from stereojax.inference import tiling
 from stereojax.inference.compile_cache import bucket_shape, ensure_enabled
 from stereojax.inference.memory import check_memory
@@ -72,10 +72,10 @@ def check_pixel_range(pixel_range, shape: tuple[int, int], lo: int, hi: int) -> 
         maps = np.stack([np.asarray(mn), np.asarray(mx)])
     except (TypeError, ValueError):
         raise StereoInputError("pixel_range must be two [H, W] maps (MIN, MAX) of the image's size "
-                               f"{shape[0]}x{shape[1]}") from None
+                               f"{wxh(shape)}") from None
     if maps.shape != (2,) + tuple(shape):
-        got = "x".join(str(n) for n in maps.shape[1:]) if maps.ndim == 3 else f"shape {maps.shape[1:]}"
-        raise StereoInputError(f"pixel_range maps are {got}, the image is {shape[0]}x{shape[1]}")
+        got = wxh(maps.shape[1:]) if maps.ndim == 3 else f"shape {maps.shape[1:]}"
+        raise StereoInputError(f"pixel_range maps are {got}, the image is {wxh(shape)}")
     if maps.dtype.kind not in "iu":
         if maps.dtype.kind != "f" or not np.all(np.isfinite(maps)) or np.any(maps != np.round(maps)):
             raise StereoInputError("pixel_range maps must hold integers (disparities MIN <= d < MAX)")
@@ -107,7 +107,7 @@ def check_size(h: int, w: int, config: StereoConfig) -> None:
     """Refuse an ``h x w`` pair too small for ``config``'s windows or disparity range."""
     need = min_image_size(config)
     if h < need or w < need:
-        raise StereoInputError(f"image is {h}x{w}, smaller than the {need}x{need} window the "
+        raise StereoInputError(f"image is {w}x{h}, smaller than the {need}x{need} window the "
                                "configuration needs")
     if config.max_disp >= w:
         raise StereoInputError(f"max_disp must be smaller than the image width {w}, got {config.max_disp}")
@@ -128,8 +128,8 @@ def prepare_pair(left: Any, right: Any, config: StereoConfig, memory_limit_gb=No
     scale = pair_float_scale(la, ra)
     gl, gr = as_grey(la, "left", scale), as_grey(ra, "right", scale)
     if gl.shape != gr.shape:
-        raise StereoInputError(f"left is {gl.shape[0]}x{gl.shape[1]} but right is "
-                               f"{gr.shape[0]}x{gr.shape[1]}; a rectified pair has equal sizes")
+        raise StereoInputError(f"left is {wxh(gl.shape)} but right is {wxh(gr.shape)}; a rectified pair has equal "
+                               "sizes")
     if (la.ndim == 3) != (ra.ndim == 3) or la.dtype != ra.dtype:
         import warnings
 
@@ -277,7 +277,7 @@ class CompiledChain:
         chain was compiled ``limited``."""
         h, w = left.shape
         if h > self.shape[0] or w > self.shape[1]:
-            raise ValueError(f"a {h}x{w} pair does not fit the {self.shape[0]}x{self.shape[1]} bucket")
+            raise ValueError(f"a {w}x{h} pair does not fit the {wxh(self.shape)} bucket")
         if (limits is not None) != self.limited:
             raise ValueError("per-pixel limits must be given exactly when the chain was compiled for them")
         lp, rp = pad_to(left, self.shape), pad_to(right, self.shape)
