@@ -107,7 +107,7 @@ def _check_complete(folder: Path, expected: set[str] | None = None) -> dict:
 
 
 _PREDICT_OUTPUTS = {"disparity.png", "disparity.pfm", "disparity_color.png", "disparity_color.json", "confidence.png", "confidence.npy",
-                    "depth.png", "depth.npy", "points.ply",
+                    "depth.png", "depth.npy", "depth_color.png", "depth_color.json", "depth_reliable.png", "points.ply",
                     "config.json", "timings.json"}
 
 

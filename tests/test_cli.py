@@ -39,7 +39,8 @@ def test_predict_writes_disparity_depth_and_timings(pair_files, tmp_path, capsys
     assert code == 0, stdout
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(["disparity.png", "disparity.pfm", "disparity_color.png", "disparity_color.json", "confidence.png", "confidence.npy", "depth.png", "depth.npy",
-                            "points.ply", "config.json", "timings.json"])
+                            "depth_color.png", "depth_color.json", "depth_reliable.png", "points.ply", "config.json",
+                            "timings.json"])
     disp = cv2.imread(str(out / "disparity.png"), cv2.IMREAD_UNCHANGED)
     assert disp.dtype == np.uint16
     from stereojax.data.io import read_pfm
@@ -140,8 +141,13 @@ def test_demo_on_the_builtin_sample(tmp_path, capsys):
         assert m["method"] == "learned" and 0 < m["bad3"] < 6.0, m
     else:
         assert m["method"] == "census" and 0 < m["bad3"] < 7.0, m
-    for f in ("disparity.png", "disparity_color.png", "error.png", "left.png", "confidence.png", "confidence.npy"):
+    for f in ("disparity.png", "disparity_color.png", "error.png", "left.png", "confidence.png", "confidence.npy",
+              "depth_color.png", "depth_reliable.png", "error_legend.png"):
         assert (out / f).stat().st_size > 0
+    depth_scale = json.loads((out / "depth_color.json").read_text())          # Motorcycle: about 2-5 m away
+    assert 1 < depth_scale["near"] < depth_scale["far"] < 10 and depth_scale["reliable_share_pct"] > 50
+    view = io.read_image(out / "overview.png")                                 # the four pictures in one
+    assert view.shape[1] == 720 and view.shape[0] > 400
     conf = np.load(out / "confidence.npy")                                 # the demo has its confidence map
     assert conf.shape == io.read_pfm(out / "disparity.pfm").shape and 0 < conf.mean() < 1
     legend = json.loads((out / "disparity_color.json").read_text())        # the colour map's scale

@@ -44,3 +44,22 @@ def test_committed_readme_and_docs_tables_are_generated_from_the_results_files()
     tables = {n: report.doc_table((results / f"{n}.md").read_text()) for n in report.DOC_TABLES}
     assert all(f"<!-- {name} -->" in docs for name in tables)
     assert report.fill(docs, tables) == docs, "docs/results.md tables differ from experiments/results: run make report"
+
+
+def test_the_figures_the_readme_and_usage_quote_in_their_text_are_the_results_files():
+    """The scores and ratios written into sentences (not tables) of README.md and docs/usage.md."""
+    import json
+
+    results = ROOT / "experiments" / "results"
+    mean = {k: json.loads((results / f"evaluate_kitti2015_{k}" / "results.json").read_text())["mean"]
+            for k in ("best", "compact")}
+    best, compact = (f"{mean[k]['pipeline']['bad3']:.2f} %" for k in ("best", "compact"))
+    sgbm = f"{mean['best']['sgbm']['bad3']:.2f} %"
+    bench = json.loads((results / "bench.json").read_text())
+    ratio = bench["chains"]["kitti2015_compact"]["warm_s"] / bench["sgbm_padded_s"]
+    status = (ROOT / "README.md").read_text().split("## Two commands")[0]
+    assert f"({best} > 3 px; OpenCV SGBM {sgbm})" in status
+    assert f"{compact} in about 4 s ({ratio:.0f}× SGBM in `make bench`)" in status
+    usage = (ROOT / "docs" / "usage.md").read_text()
+    assert f"{compact} instead of {best} > 3 px" in usage
+    assert "../shared/" not in (ROOT / "README.md").read_text().split("## Links")[1]   # no link out of the repo

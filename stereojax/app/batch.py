@@ -164,7 +164,8 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
     _warn_range(disp, conf, lo, hi, disp.shape[1], pinned_low=used is not None)
     disp = blank_unconfident(disp, conf, min_confidence)
     target.mkdir(parents=True, exist_ok=True)
-    written = write_prediction(target, "", disp, calib, sample.left, ply=ply, max_depth=max_depth) \
+    written = write_prediction(target, "", disp, calib, sample.left, ply=ply, max_depth=max_depth,
+                               confidence=conf) \
         + write_confidence(target, "", conf)
     if calib is not None:
         _check_depth(disp, calib)

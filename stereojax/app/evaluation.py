@@ -274,6 +274,7 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
         return stored.get("row")
 
     with folder_lock(output_folder(out), "evaluate"), stop_on_signals():
+        io.write_png(out / "error_legend.png", io.error_legend())      # what <frame>_error.png's colours mean
         result = evaluate_frames(items, methods, lambda s: search_range(dataset, s, max_disp), fill=fill,
                                  devices=devices, on_frame=write, progress=f"evaluate {dataset}",
                                  reuse=None if overwrite else earlier,

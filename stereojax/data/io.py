@@ -391,6 +391,26 @@ def error_map(disp: np.ndarray, gt: np.ndarray, gt_valid: np.ndarray, tau: tuple
     return palette[code]
 
 
+def error_legend(tau: tuple[float, float] = (3, 0.05)) -> np.ndarray:
+    """``u8[H, W, 3]`` legend of :func:`error_map`'s colours: one row per band of
+    :data:`KITTI_ERROR_COLORS`, labelled with its normalised error and, for an outlier band, the
+    words that say so; a title gives the normalisation."""
+    row, width = 24, 460
+    title = [f"error = min(|d - gt| / {tau[0]:g} px, |d - gt| / ({100 * tau[1]:g} % of gt))",
+             "black: no ground truth"]
+    img = np.full((row * (len(KITTI_ERROR_COLORS) + len(title)) + 8, width, 3), 255, np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    for i, text in enumerate(title):
+        cv2.putText(img, text, (6, row * (i + 1) - 7), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    for i, (lo, hi, colour) in enumerate(KITTI_ERROR_COLORS):
+        y = row * (i + len(title)) + 4
+        img[y:y + row - 4, 6:60] = colour
+        band = f"{lo:g} - {hi:g}" if np.isfinite(hi) else f">= {lo:g}"
+        note = "  outlier (> 3 px and > 5 %)" if lo >= 1.0 else ""
+        cv2.putText(img, band + note, (70, y + row - 9), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    return img
+
+
 def write_error_map(path: PathLike, disp: np.ndarray, gt: np.ndarray, gt_valid: np.ndarray,
                     tau: tuple[float, float] = (3, 0.05), noc_valid: np.ndarray | None = None,
                     dilate: bool = True) -> None:
