@@ -52,6 +52,32 @@ def test_range_warning_rule():
     assert "bottom of the disparity range" in line and "--disp-range -5 40" in line
 
 
+def test_the_suggested_range_follows_the_feature_matches_beyond_the_limit():
+    conf = np.ones((10, 1242), np.float32)
+    pinned = np.full((10, 1242), 10.0, np.float32)
+    pinned[:, :300] = 31.0                                      # 24 % at the top of 0 <= d < 32
+    line = range_warning(pinned, conf, 0, 32, 1242, matches=(0, 89))
+    assert "try --max-disp 96 (the feature matches reach d = 88)" in line
+    assert "--max-disp 64" in range_warning(pinned, conf, 0, 32, 1242, matches=(0, 30))   # they show no more
+    bottom = np.full((10, 1242), 10.0, np.float32)
+    line = range_warning(bottom, conf, 10, 40, 1242, pinned_low=True, matches=(-30, 41))
+    assert "--disp-range -30 40 (the feature matches reach d = -30)" in line
+
+
+@pytest.mark.slow
+def test_a_real_frame_pinned_at_a_small_range_gets_a_range_that_holds_its_ground_truth(data_root, tmp_path, capsys):
+    from stereojax.data.datasets import load_dataset
+
+    sample = load_dataset(data_root, "kitti2015", ["000021"], gt="noc")[0][1]()
+    reach = float(sample.gt[sample.gt_valid].max())                        # 86.2 px
+    root = data_root / "kitti2015" / "training"
+    code, _, err = _run(["predict", root / "image_2" / "000021_10.png", root / "image_3" / "000021_10.png",
+                         "--out", tmp_path / "o", "--max-disp", "32", *CENSUS], capsys)
+    assert code == 0, err
+    suggested = int(re.search(r"try --max-disp (\d+)", err).group(1))
+    assert suggested > reach, (suggested, reach)                           # twice the range (64) was not
+
+
 def test_pinned_range_warns_and_the_warning_is_recorded(tmp_path, capsys):
     lp, rp = _pair(tmp_path / "in", d=20)
     code, out, err = _run(["predict", lp, rp, "--out", tmp_path / "o", "--max-disp", "12", *CENSUS], capsys)

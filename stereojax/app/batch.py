@@ -161,7 +161,7 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
     if used is not None:
         timings = {**timings, "disp_range": list(used)}
     lo, hi = used if used is not None else (0, cfg.max_disp)
-    _warn_range(disp, conf, lo, hi, disp.shape[1], pinned_low=used is not None)
+    _warn_range(disp, conf, lo, hi, sample, check, pinned_low=used is not None)
     disp = blank_unconfident(disp, conf, min_confidence)
     target.mkdir(parents=True, exist_ok=True)
     written = write_prediction(target, "", disp, calib, sample.left, ply=ply, max_depth=max_depth,
@@ -222,12 +222,14 @@ RANGE_SHARE = 0.01
 RANGE_CONFIDENCE = 0.5
 
 
-def range_warning(disp, conf, lo: int, hi: int, width: int, pinned_low: bool = False) -> str | None:
+def range_warning(disp, conf, lo: int, hi: int, width: int, pinned_low: bool = False,
+                  matches: tuple[int, int] | None = None) -> str | None:
     """One line when more than :data:`RANGE_SHARE` of the confident pixels (confidence >=
     :data:`RANGE_CONFIDENCE`) sit within 1.5 px of the top of the searched range MIN <= d < MAX (or,
     with ``pinned_low``, of its bottom): the scene likely reaches beyond it and those pixels are
-    pinned at the limit. The line gives the share and a wider range to try; None when the range
-    holds the scene."""
+    pinned at the limit. The line gives the share and a wider range to try: the one the feature
+    matches show the scene spans (``matches``, :func:`stereojax.data.rectification.auto_disp_range`)
+    where it reaches beyond the limit, else twice the range; None when the range holds the scene."""
     d, c = np.asarray(disp), np.asarray(conf)
     sure = np.isfinite(d) & (c >= RANGE_CONFIDENCE)
     n = int(sure.sum())
@@ -239,22 +241,30 @@ def range_warning(disp, conf, lo: int, hi: int, width: int, pinned_low: bool = F
         return None
     span = hi - lo
     if top >= low:
-        new_hi = min(lo + 2 * span, width - 1)
+        seen = matches is not None and matches[1] > hi
+        new_hi = min(matches[1] if seen else lo + 2 * span, width - 1)
         new_hi = -(-new_hi // 16) * 16 if new_hi + 15 < width else new_hi
         suggest = f"--max-disp {new_hi}" if lo == 0 else f"--disp-range {lo} {new_hi}"
+        why = f" (the feature matches reach d = {matches[1] - 1})" if seen else ""
         return (f"{100 * top:.1f} % of the confident pixels sit at the top of the disparity range (d >= {hi - 1} "
-                f"of {lo} <= d < {hi}): the scene likely reaches further; try {suggest} or --disp-range auto")
-    new_lo = max(lo - span // 2, -(width - 2))
+                f"of {lo} <= d < {hi}): the scene likely reaches further; try {suggest}{why} or --disp-range auto")
+    seen = matches is not None and matches[0] < lo
+    new_lo = max(matches[0] if seen else lo - span // 2, -(width - 2))
+    why = f" (the feature matches reach d = {matches[0]})" if seen else ""
     return (f"{100 * low:.1f} % of the confident pixels sit at the bottom of the disparity range (d <= {lo} of "
-            f"{lo} <= d < {hi}): try --disp-range {new_lo} {hi} or --disp-range auto")
+            f"{lo} <= d < {hi}): try --disp-range {new_lo} {hi}{why} or --disp-range auto")
 
 
-def _warn_range(disp, conf, lo, hi, width, pinned_low=False) -> None:
-
-
-    line = range_warning(disp, conf, lo, hi, width, pinned_low)
-    if line:
-        warnings.warn(line, InputWarning, stacklevel=3)
+def _warn_range(disp, conf, lo, hi, sample, check, pinned_low=False) -> None:
+    """Warn when the range pins the scene (:func:`range_warning`), with the range the pair's
+    feature matches show (its rectification check, made now if it was off)."""
+    width = disp.shape[1]
+    if range_warning(disp, conf, lo, hi, width, pinned_low) is None:
+        return
+    if check is None:
+        check = check_rectified(sample.left, sample.right, min_disp=lo)
+    line = range_warning(disp, conf, lo, hi, width, pinned_low, auto_disp_range(check, width))
+    warnings.warn(line, InputWarning, stacklevel=3)
 
 
 def _check_depth(disp, calib) -> None:
