@@ -117,15 +117,16 @@ class Stage(NamedTuple):
 # ---- front: bands, tower, candidates, matching cost -----------------------------------------
 
 def limit_bands(offsets, limits, config):
-    """Band offsets moved inside per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX in
-    the chain's disparities; None: unchanged): each band starts at or after MIN and, where the
-    limits are at least K wide, ends at or before MAX - 1, so that it holds as much of the
-    allowed range as it can."""
+    """Band offsets moved by per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX in the
+    chain's disparities; None: unchanged), each by as little as it takes: where the limits are at
+    least K wide the band moves inside them, where they are narrower it moves to hold them whole.
+    A band that already holds the allowed range stays where the coarse pass put it, so limits
+    around the chain's own answer change none of the costs that SGM aggregates."""
     if offsets is None or limits is None:
         return offsets
     k = config.band.width
     lo, hi = limits[0], limits[1]
-    off = jnp.clip(offsets, lo, jnp.maximum(lo, hi - k))
+    off = jnp.clip(offsets, jnp.minimum(lo, hi - k), jnp.maximum(lo, hi - k))
     return jnp.clip(off, 0, config.max_disp - k)
 
 

@@ -55,7 +55,7 @@ def test_truncated_and_foreign_checkpoints(pair, tmp_path, capsys):
         code, _, err = _cli(["predict", *pair, "--out", tmp_path / "o", "--max-disp", "16", "--method", "learned",
                              "--weights", path], capsys, case)
         assert code == 4 and match in _one_line(err), (case, err)
-    assert list((tmp_path / "o").iterdir()) == []
+    assert not (tmp_path / "o").exists()                 # the failed runs made no empty folder
 
 
 def test_resume_with_another_architecture(tmp_path, capsys):
