@@ -25,7 +25,8 @@ import json
 import time
 from pathlib import Path
 
-from stereojax.inference import predictor as pipeline
+from stereojax.inference.predictor import Predictor
+from stereojax.inference.programs import disparity_from_volume
 from stereojax.config import StereoConfig, preset
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset, parse_frames, search_range
 from stereojax.data.io import write_json
@@ -90,7 +91,7 @@ def cache_volumes(samples, model, base: StereoConfig, max_disp) -> dict:
     t0 = time.perf_counter()
     for s in cache["samples"]:
         md = cache["max_disp"][s.name] = max_disp(s)
-        cache["volumes"][s.name] = pipeline.Predictor(base.with_max_disp(md), model).volume(s.left, s.right)
+        cache["volumes"][s.name] = Predictor(base.with_max_disp(md), model).volume(s.left, s.right)
         print(f"volume {s.name} ({s.left.shape[1]}x{s.left.shape[0]}, {md} disparities): "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
     return cache
@@ -100,13 +101,13 @@ def score(cache, cfg: StereoConfig, threshold: str = "bad3") -> tuple[float, lis
     """Mean error (``threshold``: bad2, bad3, ... or "bad2+bad3" for their mean; on the sample's
     GT) of the chain ``cfg`` run on the cached volumes, and the per-frame errors."""
     def from_volume(s, md):
-        return pipeline.Predictor(cfg.with_max_disp(md), cache["model"]).from_volume(cache["volumes"][s.name])
+        return Predictor(cfg.with_max_disp(md), cache["model"]).from_volume(cache["volumes"][s.name])
 
     rows = evaluate_frames(cache["samples"], {"chain": from_volume}, lambda s: cache["max_disp"][s.name])["frames"]
     errs = [float(sum(r["chain"][k] for k in threshold.split("+")) / len(threshold.split("+"))) for r in rows]
     # every setting is a new program: drop the old ones (a search of ~75 KITTI-sized programs
     # kept in memory ended in "LLVM compilation error: Cannot allocate memory" here)
-    pipeline.disparity_from_volume.clear_cache()
+    disparity_from_volume.clear_cache()
     return float(sum(errs) / len(errs)), errs
 
 

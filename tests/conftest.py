@@ -50,9 +50,9 @@ def _free_compiled_programs():
 
     import jax
 
-    from stereojax.inference import predictor as pipeline
+    from stereojax.inference import programs
 
-    pipeline._COMPILED.clear()
+    programs._COMPILED.clear()
     jax.clear_caches()
     gc.collect()
 

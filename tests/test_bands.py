@@ -5,7 +5,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-import jax
 import jax.numpy as jnp
 from hypothesis import given, settings, strategies as st
 
@@ -247,7 +246,7 @@ def test_whole_range_band_chain_equals_full_chain(kitti_pair_small):
 def kitti_pair_small(data_root):
     """A 64x160 crop of a real KITTI 2015 frame, grey 0..255."""
     from stereojax.data import load_kitti2015
-    from stereojax.inference.predictor import as_grey
+    from stereojax.data.images import as_grey
 
     s = load_kitti2015(data_root / "kitti2015" / "training", "000003")
     crop = (slice(200, 264), slice(500, 660))

@@ -11,7 +11,7 @@ import pytest
 import stereojax
 from stereojax import chain
 from stereojax.app import bench
-from stereojax.inference import predictor as pipeline
+from stereojax.inference import programs
 from stereojax.matching_cost.learned import LearnedModel
 from stereojax.models.nets import NetConfig, init_params
 
@@ -62,7 +62,7 @@ def test_run_and_the_front_follow_stages(logged):
     left, right = (a.astype(np.float32) for a in shifted_pair(3, h=32, w=64))
     cfg = stereojax.preset("census", 16)
     cfg = dataclasses.replace(cfg, band=dataclasses.replace(cfg.band, width=8))
-    st = jax.eval_shape(lambda a, b: pipeline._chain(a, b, cfg), left, right)     # traced, not compiled
+    st = jax.eval_shape(lambda a, b: programs._chain(a, b, cfg), left, right)     # traced, not compiled
     assert isinstance(st, chain.State) and st.disparity.shape == left.shape
     top = [s.name for s in chain.STAGES]
     inner = _names(logged)

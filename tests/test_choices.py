@@ -52,16 +52,16 @@ def test_range_warning_rule():
     assert "bottom of the disparity range" in line and "--disp-range -5 40" in line
 
 
-def test_the_suggested_range_follows_the_feature_matches_beyond_the_limit():
+def test_the_suggested_range_follows_the_auto_range_beyond_the_limit():
     conf = np.ones((10, 1242), np.float32)
     pinned = np.full((10, 1242), 10.0, np.float32)
     pinned[:, :300] = 31.0                                      # 24 % at the top of 0 <= d < 32
     line = range_warning(pinned, conf, 0, 32, 1242, matches=(0, 89))
-    assert "try --max-disp 96 (the feature matches reach d = 88)" in line
+    assert "try --max-disp 96 (the pair's --disp-range auto reaches d = 88)" in line
     assert "--max-disp 64" in range_warning(pinned, conf, 0, 32, 1242, matches=(0, 30))   # they show no more
     bottom = np.full((10, 1242), 10.0, np.float32)
     line = range_warning(bottom, conf, 10, 40, 1242, pinned_low=True, matches=(-30, 41))
-    assert "--disp-range -30 40 (the feature matches reach d = -30)" in line
+    assert "--disp-range -30 40 (the pair's --disp-range auto reaches d = -30)" in line
 
 
 @pytest.mark.slow

@@ -6,7 +6,6 @@ import json
 import cv2
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 import stereojax
 from stereojax.matching_cost import classical as cost_mod

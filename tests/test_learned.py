@@ -69,7 +69,7 @@ def test_whole_image_features_equal_patch_features():
             patch = norm[y - 4: y + 5, x - 4: x + 5][None, :, :, None]
             f_patch = MatchNet(net).apply(v, patch, False, method=MatchNet.features)[0, 0, 0]
             np.testing.assert_allclose(np.asarray(feats[y, x]), np.asarray(f_patch), atol=1e-4)
-    from stereojax.inference.predictor import pad_to
+    from stereojax.inference.programs import pad_to
 
     pl, pr = (jnp.asarray(pad_to(np.asarray(a), (32, 40))) for a in (left, right))
     gl, gr = learned_cost.tower_features(net, v, pl, pr, valid=jnp.array([20, 24]))

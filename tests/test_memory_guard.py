@@ -60,7 +60,7 @@ def test_memory_guard_refuses_a_4k_pair_before_allocating(monkeypatch):
 
     monkeypatch.setattr(pipeline, "compiled_chain", never)      # disparity() and the CLI compile through it
     monkeypatch.setattr(pipeline, "disparity_grey", never)      # disparity(bucket=False)
-    monkeypatch.setattr(pipeline, "_stages_grey", never)        # stages()
+    monkeypatch.setattr(pipeline, "stages_grey", never)        # stages()
     left = np.zeros((2160, 3840), np.uint8)
     cfg = _full_range(stereojax.preset("census", 228))
     with pytest.raises(MemoryBudgetError) as exc:

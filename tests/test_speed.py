@@ -123,9 +123,9 @@ def test_fast_learned_chain_matches_exact_head_on_a_real_frame(data_root):
 @pytest.mark.slow
 def test_second_process_reads_the_compilation_cache(tmp_path):
     """A second process compiling the same chain finds it in STEREOJAX_CACHE_DIR."""
-    code = ("import numpy as np, stereojax, time; from stereojax.inference import compile_cache, predictor as pipeline;"
+    code = ("import numpy as np, stereojax, time; from stereojax.inference import compile_cache, programs;"
             "compile_cache.enable(); cfg = stereojax.preset('census', 16);"
-            "t = time.perf_counter(); pipeline.compiled_chain((48, 64), cfg); print(time.perf_counter() - t)")
+            "t = time.perf_counter(); programs.compiled_chain((48, 64), cfg); print(time.perf_counter() - t)")
     env = {**os.environ, "STEREOJAX_CACHE_DIR": str(tmp_path / "cache")}
 
     def run():
@@ -209,7 +209,7 @@ def test_a_batch_of_many_sizes_keeps_its_memory_maps_bounded(tmp_path):
     In a subprocess of its own, with the compile cache off, so that nothing else counts."""
     code = """
 import os, numpy as np, stereojax
-from stereojax.inference import predictor as pipeline
+from stereojax.inference import programs
 maps = lambda: sum(1 for _ in open(f"/proc/{os.getpid()}/maps"))
 rng = np.random.default_rng(0)
 seen = []
@@ -217,7 +217,7 @@ for i in range(8):
     left = rng.integers(0, 255, (48 + 16 * i, 96)).astype(np.uint8)
     stereojax.disparity(left, np.roll(left, -3, axis=1), stereojax.preset("census", 16))
     seen.append(maps())
-print(pipeline._KEEP_PER_DEVICE, len(pipeline._COMPILED), *seen)
+print(programs._KEEP_PER_DEVICE, len(programs._COMPILED), *seen)
 """
     env = {**os.environ, "STEREOJAX_CACHE_DIR": "off", "PYTHONPATH": str(ROOT)}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=ROOT,

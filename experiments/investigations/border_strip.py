@@ -26,7 +26,7 @@ from stereojax.data.datasets import DEFAULT_DATA, load_dataset, search_range
 from stereojax.data.io import write_json
 from stereojax.metrics import evaluate
 from stereojax.models.registry import resolve
-from stereojax.inference.predictor import Volume
+from stereojax.inference.programs import Volume
 
 FRAMES = [("kitti2015", "000001")] + [("middlebury", n) for n in
                                       ("Cones_2003Q", "Teddy_2003Q", "Reindeer_2006H", "Venus_2001", "Tsukuba_2001")]

@@ -22,7 +22,7 @@ from stereojax.data.datasets import DEFAULT_DATA, load_dataset, search_range
 from stereojax.data.io import write_json
 from stereojax.metrics import evaluate
 from stereojax.models.registry import resolve
-from stereojax.inference.predictor import Volume
+from stereojax.inference.programs import Volume
 
 FRAMES = [f"{i:06d}" for i in range(1, 20, 2)]
 WEIGHTS = (0.0, 0.1, 0.2, 0.4, 0.8)

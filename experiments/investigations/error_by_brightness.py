@@ -20,7 +20,7 @@ from stereojax.app.baselines import sgbm_disparity
 from stereojax.data.datasets import DEFAULT_DATA, load_dataset, search_range
 from stereojax.data.io import write_json
 from stereojax.models.registry import resolve
-from stereojax.inference.predictor import as_grey
+from stereojax.data.images import as_grey
 
 FRAMES = [f"{i:06d}" for i in range(1, 20, 2)]
 BINS = (0, 20, 40, 70, 110, 256)

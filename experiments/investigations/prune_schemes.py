@@ -26,7 +26,8 @@ import jax.numpy as jnp
 
 from stereojax import chain
 from stereojax.matching_cost import learned as lc
-from stereojax.inference import predictor as pipeline
+from stereojax.inference.prepare import prepare_pair
+from stereojax.inference.programs import chain_from_volume, disparity_grey
 from stereojax.config import BandConfig, preset
 from stereojax.data import DEFAULT_DATA, load_kitti2015
 from stereojax.metrics import evaluate
@@ -46,7 +47,7 @@ def cache_frame(frame: str, folder: Path, model, data: str) -> Path:
         return path
     net, v = model.net, model.variables
     s = load_kitti2015(Path(data) / "kitti2015" / "training", frame)
-    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(s.left, s.right, CFG))
+    gl, gr = (jnp.asarray(a) for a in prepare_pair(s.left, s.right, CFG))
 
     @jax.jit
     def compute(left, right):
@@ -114,8 +115,8 @@ def main():
     model = load_model(shipped_weights("kitti2015"))
     frames = args.frames.split(",")
     paths = [cache_frame(f, Path(args.cache), model, args.data) for f in frames]
-    post = jax.jit(lambda vol, a, b: pipeline.chain_from_volume(vol, a, b, CFG).disparity)
-    census = jax.jit(lambda a, b: pipeline.disparity_grey(a, b, preset("census", D)))
+    post = jax.jit(lambda vol, a, b: chain_from_volume(vol, a, b, CFG).disparity)
+    census = jax.jit(lambda a, b: disparity_grey(a, b, preset("census", D)))
     rows = []
     for scheme in SCHEMES:
         errs = []

@@ -17,7 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 
-from stereojax.inference import predictor as pipeline
+from stereojax.inference.prepare import prepare_pair
+from stereojax.inference.programs import disparity_grey
 from stereojax.config import StereoConfig
 from stereojax.data import DEFAULT_DATA, load_kitti2015
 from stereojax.metrics import evaluate
@@ -38,8 +39,8 @@ def main():
         cfg = StereoConfig.from_dict({**json.loads(line), "max_disp": 228})
         t0, errs = time.time(), []
         for s in samples:
-            gl, gr = pipeline.prepare_pair(s.left, s.right, cfg)
-            disp = np.asarray(pipeline.disparity_grey(jnp.asarray(gl), jnp.asarray(gr), cfg))
+            gl, gr = prepare_pair(s.left, s.right, cfg)
+            disp = np.asarray(disparity_grey(jnp.asarray(gl), jnp.asarray(gr), cfg))
             errs.append(evaluate(disp, s.gt, s.gt_valid)["bad3"])
         print(f"{np.mean(errs):6.2f}  {time.time() - t0:5.1f}s  {line}", flush=True)
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from stereojax.data.images import to_u8
+
 
 def sgbm_matcher(num_disp: int = 240, block_size: int = 5) -> "cv2.StereoSGBM":
     num_disp = int(np.ceil(num_disp / 16) * 16)
@@ -26,19 +28,6 @@ def sgbm_matcher(num_disp: int = 240, block_size: int = 5) -> "cv2.StereoSGBM":
         mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
 
 
-def _to_u8(image: np.ndarray) -> np.ndarray:
-    """uint8 grey image from grey or RGB, uint8 / uint16 / float input."""
-    img = np.asarray(image)
-    if img.dtype == np.uint16:
-        img = (img / 257.0).round().astype(np.uint8)
-    elif img.dtype != np.uint8:
-        scale = 255.0 if img.max() <= 1.0 else 1.0
-        img = np.clip(img * scale, 0, 255).round().astype(np.uint8)
-    if img.ndim == 3:
-        img = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2GRAY)
-    return img
-
-
 def sgbm_disparity(left: np.ndarray, right: np.ndarray, num_disp: int = 240, pad: bool = True,
                    block_size: int = 5) -> tuple[np.ndarray, np.ndarray]:
     """OpenCV StereoSGBM disparity of a pair: (``f32[H, W]`` disparity, ``bool[H, W]`` valid).
@@ -47,7 +36,7 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, num_disp: int = 240, pad
     """
     matcher = sgbm_matcher(num_disp, block_size)
     nd = matcher.getNumDisparities()
-    l8, r8 = _to_u8(left), _to_u8(right)
+    l8, r8 = to_u8(left), to_u8(right)
     if pad:
         l8 = np.pad(l8, [(0, 0), (nd, 0)], mode="edge")
         r8 = np.pad(r8, [(0, 0), (nd, 0)], mode="edge")

@@ -32,11 +32,13 @@ from stereojax.data.calibration import plausibility_warnings
 from stereojax.data.datasets import load_pair
 from stereojax.data.depth import disparity_to_depth
 from stereojax.data.io import write_json
-from stereojax.data.rectification import auto_disp_range, check_rectified
+from stereojax.data.disp_range import AutoRange, auto_disp_range
+from stereojax.data.rectification import check_rectified
 from stereojax.devices import current_device, map_frames
 from stereojax.errors import InputWarning, StereoError, StereoInputError
 from stereojax.inference.memory import current_rss_bytes, peak_rss_bytes
-from stereojax.inference.predictor import Predictor, check_size
+from stereojax.inference.predictor import Predictor
+from stereojax.inference.prepare import check_size
 from stereojax.interrupt import Interrupted, stop_on_signals
 
 MANIFEST = "frame.json"
@@ -149,10 +151,10 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
         check_size(h, w, early)
     low = disp_range[0] if isinstance(disp_range, tuple | list) else 0
     check = _check_rectified(sample, check_rectified, need=disp_range == "auto", min_disp=low)
-    used = _disp_range(disp_range, check, sample.left.shape[1])
-    if disp_range == "auto" and phases is not None and not getattr(phases, "quiet", False):
-        print(f"disparity range auto: {used[0]} <= d < {used[1]} (from {check.matches} feature matches, "
-              f"1st-99th percentile {check.disparity_p1:.1f}..{check.disparity_p99:.1f} px, widened)", file=sys.stderr)
+    found = _disp_range(disp_range, check, sample)
+    used = found.range if isinstance(found, AutoRange) else found
+    if isinstance(found, AutoRange) and phases is not None and not getattr(phases, "quiet", False):
+        print(f"disparity range auto: {found.describe()}", file=sys.stderr)
     run = resolve(sample.left.shape[1], sample.left.shape[0])
     cfg = run.config
     predictor = Predictor(cfg, run.model(), current_device(), confidence=True, tile=tile, disp_range=used)
@@ -204,15 +206,15 @@ def _check_rectified(sample, mode: str, need: bool = False, min_disp: int = 0):
     return check
 
 
-def _disp_range(option, check, width: int):
-    """The (MIN, MAX) a pair runs with: the option's, or the feature matches' for "auto"."""
+def _disp_range(option, check, sample):
+    """The (MIN, MAX) a pair runs with: the option's, or for "auto" the
+    :class:`~stereojax.data.disp_range.AutoRange` the pair shows."""
     if option != "auto":
         return option
-
-    found = auto_disp_range(check, width)
+    found = auto_disp_range(sample.left, sample.right, check)
     if found is None:
-        raise StereoInputError(f"--disp-range auto found too few feature matches ({check.matches}) to tell the "
-                               "disparity range; give --disp-range MIN MAX or --max-disp")
+        raise StereoInputError(f"--disp-range auto could not tell the disparity range ({check.matches} feature "
+                               "matches, too few pixels matched densely); give --disp-range MIN MAX or --max-disp")
     return found
 
 
@@ -227,8 +229,8 @@ def range_warning(disp, conf, lo: int, hi: int, width: int, pinned_low: bool = F
     """One line when more than :data:`RANGE_SHARE` of the confident pixels (confidence >=
     :data:`RANGE_CONFIDENCE`) sit within 1.5 px of the top of the searched range MIN <= d < MAX (or,
     with ``pinned_low``, of its bottom): the scene likely reaches beyond it and those pixels are
-    pinned at the limit. The line gives the share and a wider range to try: the one the feature
-    matches show the scene spans (``matches``, :func:`stereojax.data.rectification.auto_disp_range`)
+    pinned at the limit. The line gives the share and a wider range to try: the pair's automatic range
+    (``matches``, :func:`stereojax.data.disp_range.auto_disp_range`)
     where it reaches beyond the limit, else twice the range; None when the range holds the scene."""
     d, c = np.asarray(disp), np.asarray(conf)
     sure = np.isfinite(d) & (c >= RANGE_CONFIDENCE)
@@ -245,25 +247,27 @@ def range_warning(disp, conf, lo: int, hi: int, width: int, pinned_low: bool = F
         new_hi = min(matches[1] if seen else lo + 2 * span, width - 1)
         new_hi = -(-new_hi // 16) * 16 if new_hi + 15 < width else new_hi
         suggest = f"--max-disp {new_hi}" if lo == 0 else f"--disp-range {lo} {new_hi}"
-        why = f" (the feature matches reach d = {matches[1] - 1})" if seen else ""
+        why = f" (the pair's --disp-range auto reaches d = {matches[1] - 1})" if seen else ""
         return (f"{100 * top:.1f} % of the confident pixels sit at the top of the disparity range (d >= {hi - 1} "
                 f"of {lo} <= d < {hi}): the scene likely reaches further; try {suggest}{why} or --disp-range auto")
     seen = matches is not None and matches[0] < lo
     new_lo = max(matches[0] if seen else lo - span // 2, -(width - 2))
-    why = f" (the feature matches reach d = {matches[0]})" if seen else ""
+    why = f" (the pair's --disp-range auto reaches d = {matches[0]})" if seen else ""
     return (f"{100 * low:.1f} % of the confident pixels sit at the bottom of the disparity range (d <= {lo} of "
             f"{lo} <= d < {hi}): try --disp-range {new_lo} {hi}{why} or --disp-range auto")
 
 
 def _warn_range(disp, conf, lo, hi, sample, check, pinned_low=False) -> None:
     """Warn when the range pins the scene (:func:`range_warning`), with the range the pair's
-    feature matches show (its rectification check, made now if it was off)."""
+    auto range shows (:func:`stereojax.data.disp_range.auto_disp_range`; the rectification check
+    is made now if it was off)."""
     width = disp.shape[1]
     if range_warning(disp, conf, lo, hi, width, pinned_low) is None:
         return
     if check is None:
         check = check_rectified(sample.left, sample.right, min_disp=lo)
-    line = range_warning(disp, conf, lo, hi, width, pinned_low, auto_disp_range(check, width))
+    found = auto_disp_range(sample.left, sample.right, check)
+    line = range_warning(disp, conf, lo, hi, width, pinned_low, None if found is None else found.range)
     warnings.warn(line, InputWarning, stacklevel=3)
 
 

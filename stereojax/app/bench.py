@@ -29,7 +29,7 @@ from stereojax.chain import STAGES
 from stereojax.config import preset
 from stereojax.data.datasets import DEFAULT_DATA, load_builtin_sample
 from stereojax.data.io import atomic_output, write_json
-from stereojax.inference import predictor as pipeline
+from stereojax.inference.prepare import prepare_pair
 from stereojax.inference.memory import peak_rss_bytes
 from stereojax.inference.predictor import Predictor
 from stereojax.matching_cost import learned as lc
@@ -87,7 +87,7 @@ def stage_timings(left, right, cfg, model=None, repeats=3) -> dict:
 
 
     variables, net = chain.model_args(cfg, model)
-    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
+    gl, gr = (jnp.asarray(a) for a in prepare_pair(left, right, cfg))
     st = chain.initial(gl, gr, variables=variables, net=net)
     rows = {}
     for stage in chain.STAGES:
@@ -289,7 +289,7 @@ def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: i
     rows = stage_timings(left, right, cfg, model, repeats)
     c = cfg.cost
     evals = c.candidates + c.unsure_share * (c.unsure_candidates - c.candidates)
-    gl, gr = (jnp.asarray(a) for a in pipeline.prepare_pair(left, right, cfg))
+    gl, gr = (jnp.asarray(a) for a in prepare_pair(left, right, cfg))
     fl, fr = jax.jit(lambda a, b: lc.tower_features(net, v, a, b))(gl, gr)
     _, t = _time(jax.jit(lambda f1, f2: lc.dense_cost(net, v, f1, f2, exact_disps, c.rows_per_tile)),
                  fl, fr, repeats=1)

@@ -7,24 +7,34 @@ either the complete file or none.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import json
 import sys
+import warnings
 from pathlib import Path
 from typing import Sequence
 
-from stereojax import __version__
+from stereojax.app.batch import pair_line, predict_batch, predict_pair, summary_line
+from stereojax.app.bench import run_bench
+from stereojax.app.demo import run_demo
+from stereojax.app.evaluation import evaluate_dataset
 from stereojax.app.outputs import folder_lock, output_folder, remove_if_empty
-from stereojax.data.datasets import DEFAULT_DATA, KITTI_MAX_DISP, parse_frames
-from stereojax.data.io import json_default as _json_default
-from stereojax.data.pairs import find_pairs
-from stereojax.errors import StereoError
+from stereojax.app.parser import DEFAULT_MAX_DISP, build_parser
+from stereojax.app.ray_batch import connect, predict_batch_ray
+from stereojax.config import StereoConfig
+from stereojax.data.calibration import calibration_from_options, describe
+from stereojax.data.datasets import load_builtin_sample, load_dataset, parse_frames
+from stereojax.data.io import json_default as _json_default, read_image
+from stereojax.data.pairs import find_pairs, unmatched_line
+from stereojax.devices import local_devices
+from stereojax.errors import ConfigError, StereoError, StereoInputError
+from stereojax.inference.compile_cache import enable
+from stereojax.inference.prepare import check_disp_range
 from stereojax.interrupt import Interrupted
-
-DEFAULT_MAX_DISP = KITTI_MAX_DISP     # 228, the KITTI search range of the data layer
-
+from stereojax.learning.train import TrainConfig, config_from_options, maybe_initialize_distributed, train_on_dataset
+from stereojax.models.registry import resolve
+from stereojax.progress import Phases
 
 # ---- helpers -----------------------------------------------------------------------------------
 
@@ -32,9 +42,6 @@ def _resolve(args, width: int = 0, height: int = 0, dataset: str | None = None, 
     """What runs for this command line and input (:func:`stereojax.models.registry.resolve`). The number
     of disparities: ``max_disp``, else ``--max-disp`` when given, else a ``--config`` file's
     ``max_disp``, else 228 (KITTI's); a ``--max-disp`` given beside a config file wins."""
-    from stereojax.config import StereoConfig
-    from stereojax.models.registry import resolve
-
     if max_disp is None:
         max_disp = getattr(args, "max_disp", None)
     config = StereoConfig.from_file(args.config) if getattr(args, "config", None) else None
@@ -46,8 +53,6 @@ def _resolve(args, width: int = 0, height: int = 0, dataset: str | None = None, 
 
 def _calibration(args, show: bool = True):
     """(the calibration of the command line or None, its one-line description or None)."""
-    from stereojax.data.calibration import calibration_from_options, describe
-
     calib, source = calibration_from_options(args.calib, args.baseline, args.focal, args.doffs)
     line = describe(calib, source) if calib is not None else None
     if show and line:
@@ -57,8 +62,6 @@ def _calibration(args, show: bool = True):
 
 def _max_disp_note(args) -> str | None:
     """The line that says which of ``--max-disp`` and a ``--config`` file's ``max_disp`` runs."""
-    from stereojax.config import StereoConfig
-
     if not getattr(args, "config", None) or getattr(args, "disp_range", None):
         return None
     file_md = StereoConfig.from_file(args.config).max_disp
@@ -70,8 +73,6 @@ def _max_disp_note(args) -> str | None:
 def _first_size(pairs) -> tuple[int, int] | None:
     """(width, height) of the first readable left image of ``pairs`` (None: none of the first
     few reads; the frames report their own errors)."""
-    from stereojax.data.io import read_image
-
     for _, left, _ in pairs[:3]:
         try:
             img = read_image(left)
@@ -83,9 +84,6 @@ def _first_size(pairs) -> tuple[int, int] | None:
 
 def _disp_range_arg(values):
     """``--disp-range MIN MAX`` -> (MIN, MAX); ``--disp-range auto`` -> "auto"; absent -> None."""
-    from stereojax.errors import StereoInputError
-    from stereojax.inference.predictor import check_disp_range
-
     if values is None:
         return None
     if values == ["auto"]:
@@ -102,14 +100,8 @@ def _disp_range_arg(values):
 # ---- commands ----------------------------------------------------------------------------------
 
 def cmd_predict(args) -> int:
-    from stereojax.devices import local_devices
-    from stereojax.errors import ConfigError
-    from stereojax.inference.compile_cache import enable
-
     pairs, batch = find_pairs(args.inputs, args.pairs)
     if args.ray and batch:       # before JAX starts its threads: a local cluster forks its processes
-        from stereojax.app.ray_batch import connect
-
         connect(args.ray)
     devices = local_devices(args.devices)          # a bad --devices is refused for one pair too
     calib, calib_line = _calibration(args, show=False)
@@ -127,11 +119,6 @@ def cmd_predict(args) -> int:
 
 
 def _predict(args, pairs, batch, out, devices, calib, calib_line) -> int:
-    from stereojax.app.batch import pair_line, predict_batch, predict_pair, summary_line
-    from stereojax.data.pairs import unmatched_line
-    from stereojax.errors import ConfigError
-    from stereojax.progress import Phases
-
     opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified,
                 tile=args.tile, disp_range=_disp_range_arg(args.disp_range), max_depth=args.max_depth)
     resolve = lambda w, h: _resolve(args, w, h)  # noqa: E731
@@ -154,8 +141,6 @@ def _predict(args, pairs, batch, out, devices, calib, calib_line) -> int:
     if unmatched:
         print(f"stereojax predict: {unmatched_line(unmatched)}", file=sys.stderr)
     if args.ray:
-        from stereojax.app.ray_batch import predict_batch_ray
-
         s = predict_batch_ray(pairs, out, resolve, args.ray, workers=args.ray_workers, overwrite=args.overwrite,
                               verify=args.verify, unmatched=unmatched, announced=announced, **opts)
     else:
@@ -166,11 +151,6 @@ def _predict(args, pairs, batch, out, devices, calib, calib_line) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from stereojax.app.evaluation import evaluate_dataset
-    from stereojax.data.datasets import load_dataset
-    from stereojax.devices import local_devices
-    from stereojax.inference.compile_cache import enable
-
     out = output_folder(args.out)
     enable()
     items = load_dataset(args.data, args.dataset, frames=parse_frames(args.frames),
@@ -184,10 +164,6 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from stereojax.app.demo import run_demo
-    from stereojax.data.datasets import load_builtin_sample
-    from stereojax.inference.compile_cache import enable
-
     out = output_folder(args.out)
     enable()
     sample = load_builtin_sample()
@@ -197,9 +173,6 @@ def cmd_demo(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from stereojax.learning.train import (TrainConfig, config_from_options,
-                                          maybe_initialize_distributed, train_on_dataset)
-
     maybe_initialize_distributed()
     out = output_folder(args.out)
     if args.config:
@@ -219,44 +192,11 @@ def cmd_train(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from stereojax.app.bench import run_bench
-
     run_bench(Path(args.out), repeats=args.repeats, max_disp=args.max_disp, data=args.data)
     return 0
 
 
-def _unit(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
-    return value
-
-
 # ---- entry point -------------------------------------------------------------------------------
-
-class _Formatter(argparse.HelpFormatter):
-    """argparse's help, except that ``--disp-range`` reads ``MIN MAX | auto`` (not the repeated
-    ``MIN MAX|auto [MIN MAX|auto ...]`` that its one-or-more values would show)."""
-
-    def _format_args(self, action, default_metavar):
-        if action.dest == "disp_range":
-            return "MIN MAX | auto"
-        return super()._format_args(action, default_metavar)
-
-
-class _OneLineParser(argparse.ArgumentParser):
-    """Usage errors (unknown option, ``--max-disp 1.5``) as one line on stderr, exit code 2."""
-
-    def __init__(self, *args, **kwargs):
-        kwargs.setdefault("formatter_class", _Formatter)
-        super().__init__(*args, **kwargs)
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
 
 def _warning_printer(command: str):
     """Show warnings (e.g. a colour image paired with a grey one) as one line on stderr."""
@@ -265,152 +205,16 @@ def _warning_printer(command: str):
     return show
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _OneLineParser(prog="stereojax", description="Stereo matching in JAX: disparity and depth from a "
-                       "rectified pair. The matching cost is learned (an MC-CNN-style network, shipped "
-                       "models for KITTI and Middlebury) or classical (census, SAD); then cross-based "
-                       "aggregation, semi-global matching and refinement.")
-    p.add_argument("--version", action="version", version=f"stereojax {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
-
-    def add_method(sp):
-        sp.add_argument("--method", default="best", choices=["best", "learned", "census", "sad"],
-                        help="matching cost (default: best = learned with the shipped model for this "
-                        "kind of input -- KITTI-like wide frames: KITTI 2015 model, others: Middlebury "
-                        "model -- or census when that model is not shipped)")
-        sp.add_argument("--weights", help="network checkpoint for --method learned/best, or the name of "
-                        "a shipped model (kitti2015_compact, kitti2015 = the paper's full network, middlebury)")
-        sp.add_argument("--exact-head", action="store_true", help="learned cost: run the head at every "
-                        "disparity instead of the candidates (slow on a CPU; its chain settings were never "
-                        "searched)")
-        sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides the chain "
-                        "settings of --method; its cost.method must fit --method)")
-        sp.add_argument("--scene", default="auto", choices=["auto", "road", "indoor"], help="--method best: the "
-                        "model for road frames (KITTI 2015) or indoor scenes (Middlebury); auto (default): road "
-                        "when the frame is at least 2.5 times as wide as high, or by --dataset")
-
-    def add_devices(sp):
-        sp.add_argument("--devices", type=int, help="spread the frames over this many local devices, "
-                        "one frame per device at a time (default: all; the results equal one device's)")
-
-    sp = sub.add_parser("predict", help="disparity (and depth) of one rectified pair, or of many: "
-                        "two folders, a KITTI training/ or testing/ folder, or a list of pairs")
-    sp.add_argument("inputs", nargs="*", metavar="INPUT",
-                    help="LEFT RIGHT (two images: one pair; two folders: pairs matched by file name), "
-                    "or one KITTI training/ or testing/ folder, or one text file of 'LEFT RIGHT' lines")
-    sp.add_argument("--pairs", help="text file with one 'LEFT RIGHT' pair per line")
-    sp.add_argument("--out", required=True, help="output folder (a batch writes OUT/<frame>/...)")
-    sp.add_argument("--max-disp", type=int, help="number of disparities searched, 0 <= d < N (default: a --config "
-                    "file's max_disp, else 228 = KITTI's; see the README on choosing it; given beside --config, "
-                    "this one wins)")
-    sp.add_argument("--disp-range", nargs="+", help="search the disparities MIN <= d < MAX "
-                    "instead of 0 .. max-disp - 1 (MIN may be negative); auto: from the feature matches of the "
-                    "rectification check, printed and written to frame.json")
-    sp.add_argument("--baseline", type=float, help="baseline in metres (for depth)")
-    sp.add_argument("--focal", type=float, help="focal length in pixels (for depth)")
-    sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")
-    sp.add_argument("--calib", help="calibration file for depth: KITTI calib_cam_to_cam.txt or calib/<frame>.txt, "
-                    "Middlebury calib.txt, OpenCV YAML or JSON with K and baseline (m)")
-    sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs a calibration; "
-                    "refused without one)")
-    sp.add_argument("--max-depth", type=float, metavar="M", help="no depth (0) in depth.npy/depth.png and no point "
-                    "in points.ply beyond M metres (default: none; depth.png itself holds at most 255.99 m)")
-    sp.add_argument("--tile", default="auto", choices=["auto", "off"], help="a pair too large for the memory limit: "
-                    "auto computes it in horizontal bands (default), off refuses it (exit code 6)")
-    sp.add_argument("--check-rectified", default="warn", choices=["warn", "error", "off"], help="check with "
-                    "feature matches that the pair is rectified and not swapped: warn (default), error, off")
-    sp.add_argument("--min-confidence", type=_unit, default=0.0, metavar="T", help="no disparity or depth "
-                    "(0 in the PNGs) where the confidence (confidence.png) is below T in [0, 1] (default 0: all)")
-    sp.add_argument("--overwrite", action="store_true", help="a batch computes every frame again (default: "
-                    "frames already complete in --out with the same method, model, settings and inputs are kept)")
-    sp.add_argument("--verify", action="store_true", help="a batch reads the SHA-256 of every kept frame's files "
-                    "again (default: their sizes are checked); a frame that fails is computed again")
-    sp.add_argument("--ray", metavar="ADDRESS", help="compute the batch on a Ray cluster: HOST:PORT, ray://HOST:PORT, "
-                    "or auto (RAY_ADDRESS, else a new local cluster); same outputs and resume as a local batch "
-                    "(needs pip install \"stereojax[ray]\"; OUT must be a folder every node sees)")
-    sp.add_argument("--ray-workers", type=int, metavar="N", help="with --ray: this many workers (default: one per "
-                    "GPU, else one per 2 CPUs of the cluster)")
-    add_devices(sp)
-    add_method(sp)
-    sp.set_defaults(func=cmd_predict)
-
-    sp = sub.add_parser("evaluate", help="score the pipeline on KITTI 2012/2015 or Middlebury")
-    sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data/kitti2015/training)")
-    sp.add_argument("--dataset", required=True, choices=["kitti2015", "kitti2012", "middlebury"])
-    sp.add_argument("--frames", help="e.g. 000021-000030 or 21,22 (default: all)")
-    sp.add_argument("--gt", default="noc", choices=["noc", "occ", "both"], help="ground truth: non-occluded, "
-                    "all pixels (occ), or both scored apart (default noc)")
-    sp.add_argument("--fill", default="interpolate", choices=["interpolate", "error"],
-                    help="pixels without estimate: KITTI background interpolation, or count as errors")
-    sp.add_argument("--max-disp", type=int, help="default: 228 for KITTI, ndisp/GT for Middlebury")
-    sp.add_argument("--sgbm", action="store_true",
-                    help="also score OpenCV StereoSGBM, left-padded and unpadded, in the same run")
-    sp.add_argument("--out", default="out/evaluate", help="output folder (an evaluation of the same settings "
-                    "there is continued: frames already scored are taken from OUT/frames/)")
-    sp.add_argument("--overwrite", action="store_true", help="score every frame again")
-    sp.add_argument("--verify", action="store_true", help="read the SHA-256 of every reused frame's files again "
-                    "(default: their sizes are checked)")
-    add_devices(sp)
-    add_method(sp)
-    sp.set_defaults(func=cmd_evaluate)
-
-    sp = sub.add_parser("demo", help="run the built-in Middlebury Motorcycle pair and print its errors")
-    sp.add_argument("--out", default="out/demo")
-    sp.add_argument("--max-disp", type=int, help="default: the sample's disparity range")
-    add_method(sp)
-    sp.set_defaults(func=cmd_demo)
-
-    sp = sub.add_parser("train", help="train the matching network on patch pairs (CPU)")
-    sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data)")
-    sp.add_argument("--dataset", default="kitti2015", choices=["kitti2015", "kitti2012", "middlebury"])
-    sp.add_argument("--frames", default="000001-000020", help="training frames or scenes (comma list)")
-    sp.add_argument("--val-frames", help="validation frames (patch error)")
-    sp.add_argument("--preset", default="cpu", choices=["cpu", "paper", "tiny"], help="cpu (default): the "
-                    "paper's head on a tower of 64 maps, 50 000 steps (hours on 2 cores); paper: 112 maps and the "
-                    "paper's schedule, 240 000 steps; tiny: 8 maps for 12 steps, for tests -- it learns nothing")
-    sp.add_argument("--checkpoint-every", type=int, metavar="N", help="write OUT/checkpoint.msgpack every N steps "
-                    "(default: the preset's, 1000 for cpu); SIGINT/SIGTERM also write one")
-    sp.add_argument("--head", default="downsize", choices=["downsize", "uniform", "cosine"])
-    sp.add_argument("--loss", choices=["bce", "relaxed", "hinge"], help="default: relaxed, or hinge for cosine")
-    sp.add_argument("--delta", type=float, help="margin of the relaxed loss (default 0.05)")
-    sp.add_argument("--steps", type=int)
-    sp.add_argument("--seed", type=int)
-    sp.add_argument("--config", help="JSON TrainConfig (overrides the preset options)")
-    sp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.msgpack")
-    sp.add_argument("--augment", action="store_true", help="MC-CNN-style patch augmentation (rotation, "
-                    "scale, shear, brightness and contrast; right patches get their own small difference)")
-    sp.add_argument("--init", help="start from these weights (a checkpoint or a shipped model name) "
-                    "instead of random ones; the optimiser and schedule start afresh")
-    sp.add_argument("--lr", type=float, help="initial learning rate (default: the preset's, 0.02)")
-    sp.add_argument("--features", type=int, help="feature maps of the tower (default: the preset's, 64 for cpu)")
-    sp.add_argument("--widths", help="hidden widths of a dense head, comma separated (default: the head's, "
-                    "512,384,256,128 for downsize); e.g. 64,32 for a compressed network")
-    sp.add_argument("--distill", help="teacher network (a checkpoint or a shipped model name): distil its "
-                    "similarities beside the loss on the labels")
-    sp.add_argument("--distill-weight", type=float, default=1.0, help="weight of the distillation term (default 1)")
-    sp.add_argument("--devices", type=int, help="data-parallel over this many devices (default: all); "
-                    "the batch must divide by it")
-    sp.add_argument("--out", required=True)
-    sp.set_defaults(func=cmd_train)
-
-    sp = sub.add_parser("bench", help="time every stage on a KITTI-sized frame (and OpenCV SGBM)")
-    sp.add_argument("--out", default="experiments/results")
-    sp.add_argument("--repeats", type=int, default=3)
-    sp.add_argument("--data", default=DEFAULT_DATA, help="shared data root with KITTI 2015 000021 (default "
-                    f"{DEFAULT_DATA}; without it the built-in sample, resized)")
-    sp.add_argument("--max-disp", type=int, default=DEFAULT_MAX_DISP)
-    sp.set_defaults(func=cmd_bench)
-    return p
+COMMANDS = {"predict": cmd_predict, "evaluate": cmd_evaluate, "demo": cmd_demo, "train": cmd_train,
+            "bench": cmd_bench}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    import warnings
-
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _warning_printer(args.command)
-            return args.func(args)
+            return COMMANDS[args.command](args)
     except StereoError as exc:
         print(f"stereojax {args.command}: error: {exc}", file=sys.stderr)
         remove_if_empty()              # a run that failed before its first output leaves no folder

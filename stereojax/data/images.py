@@ -1,6 +1,6 @@
 """Input images to grey ``f32[H, W]`` in 0..255, with one-line errors for what cannot be an image.
 
-Shared by inference (:func:`stereojax.inference.predictor.prepare_pair`) and training
+Shared by inference (:func:`stereojax.inference.prepare.prepare_pair`) and training
 (:mod:`stereojax.learning.sampling`, :mod:`stereojax.learning.train`), so that training never imports the
 inference module.
 """
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import cv2
 import numpy as np
 
 from stereojax.errors import StereoInputError
@@ -66,3 +67,16 @@ def pair_float_scale(left: np.ndarray, right: np.ndarray) -> float | None:
     if not floats:
         return None
     return 255.0 if max(float(a.max()) for a in floats) <= 1.0 else 1.0
+
+
+def to_u8(image: np.ndarray) -> np.ndarray:
+    """uint8 grey image from grey or RGB, uint8 / uint16 / float input (for OpenCV's matchers)."""
+    img = np.asarray(image)
+    if img.dtype == np.uint16:
+        img = (img / 257.0).round().astype(np.uint8)
+    elif img.dtype != np.uint8:
+        scale = 255.0 if img.max() <= 1.0 else 1.0
+        img = np.clip(img * scale, 0, 255).round().astype(np.uint8)
+    if img.ndim == 3:
+        img = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), cv2.COLOR_RGB2GRAY)
+    return img

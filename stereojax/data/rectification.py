@@ -122,29 +122,3 @@ def _check(gl, gr, features: int, lowest: int) -> RectificationCheck:
                    "OpenCV's stereoRectify and remap")
     return RectificationCheck(len(dy), median, p90, share_right, problem, d1, d99)
 
-
-#: ``--disp-range auto``: below, the matches' 1st percentile disparity less a quarter of the span
-#: (at least AUTO_MARGIN_PX); above, the 99th percentile times AUTO_FACTOR, and at least
-#: AUTO_HEADROOM_PX beyond it. Sparse features miss texture-poor near surfaces (KITTI's road in
-#: front of the car): on KITTI 2015 training frames 000001-000020 the matches' 99th percentile
-#: was 23-88 px against a GT 99th percentile of 63-110 px; with this rule the range held the GT's
-#: 99th percentile on all 20 frames and its maximum on 19 (docs/results.md).
-AUTO_MARGIN_SHARE = 0.25
-AUTO_MARGIN_PX = 16
-AUTO_FACTOR = 2.0
-AUTO_HEADROOM_PX = 48
-
-
-def auto_disp_range(check: RectificationCheck, width: int) -> tuple[int, int] | None:
-    """(MIN, MAX) disparities (MIN <= d < MAX) from the feature matches of :func:`check_rectified`,
-    or None when there were too few matches to tell. Within (-width + 1, width)."""
-
-    if not (math.isfinite(check.disparity_p1) and math.isfinite(check.disparity_p99)):
-        return None
-    p1, p99 = check.disparity_p1, check.disparity_p99
-    lo = math.floor(p1 - max(AUTO_MARGIN_PX, AUTO_MARGIN_SHARE * (p99 - p1)))
-    hi = math.ceil(max(AUTO_FACTOR * p99, p99 + AUTO_HEADROOM_PX)) + 1
-    if check.disparity_p1 >= 0:      # a parallel rig: nothing lies behind infinity
-        lo = max(lo, 0)
-    lo, hi = max(lo, -(width - 2)), min(hi, width - 1)
-    return (lo, hi) if hi - lo >= 2 else None
