@@ -69,6 +69,7 @@ results-evaluate: $(STAMP)  ## the project's evaluations behind the README table
 
 bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS, stage profile, entries/s vs OpenCV, make demo's computation; issue targets -> experiments/results/bench.{json,md}
 	$(CLI) bench --data $(DATA) --out experiments/results
+	$(EXP)/bench_report.py --results experiments/results
 
 dense-distill: $(STAMP)  ## issue 26: students distilled from the full KITTI model's band costs (targets cached in runs/dense_targets, ~45 min) -> experiments/results/dense_distill.{json,md,png}
 	$(EXP)/dense_distill.py --data $(DATA)

@@ -40,7 +40,7 @@ from stereojax.disparity import right_view, winner_takes_all
 from stereojax.errors import ConfigError
 from stereojax.filters import bilateral, median
 from stereojax.matching_cost import classical as cost_mod, coarse
-from stereojax.matching_cost.learned import candidate_config, rank, tower_features
+from stereojax.matching_cost.learned import LearnedModel, candidate_config, learned_volume, rank, tower_features
 from stereojax.models.nets import NetConfig
 from stereojax.optimization.semi_global import sgm, sgm_volume
 from stereojax.refinement import parabola
@@ -175,8 +175,6 @@ def _candidates(st: State, config) -> State:
 def _matching_cost(st: State, config) -> State:
     """The left view's volume of the config's cost method in the bands (``st.offset``)."""
     if config.cost.method == "learned":
-        from stereojax.matching_cost.learned import learned_volume
-
         vol = learned_volume(st.net, st.variables, st.features, st.ranked, config, st.offset, st.valid)
         right_vol = None
         if config.refine.lr_check and not config.refine.right_from_left:
@@ -373,8 +371,6 @@ def model_args(config, model):
     :class:`~stereojax.matching_cost.learned.LearnedModel` for the learned cost, None for the classical ones."""
 
     if config.cost.method == "learned":
-        from stereojax.matching_cost.learned import LearnedModel
-
         if not isinstance(model, LearnedModel):
             raise ConfigError("cost method 'learned' needs params=LearnedModel (e.g. "
                               "stereojax.load_model('weights.msgpack')), got "

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from stereojax.app.integrity import damaged
+from stereojax.app.integrity import damaged, file_entries
 from stereojax.app.outputs import (blank_unconfident, folder_lock, output_folder, pid_alive,
                                    write_confidence, write_prediction)
 from stereojax.app.warnlog import recording
@@ -178,8 +178,6 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
                                          "chosen": run.description})
     written += ["config.json", "timings.json"]
     if record:
-        from stereojax.app.integrity import file_entries
-
         write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence,
                                                       disp_range, max_depth),
                                        "disp_range_used": None if used is None else list(used),

@@ -4,6 +4,10 @@ Times are warm (after compilation), the median of ``repeats`` runs; compilation 
 separately. The whole chain's peak memory is the peak resident set size of a fresh child
 process that compiles and runs it once (so nothing else in this process inflates it), and
 XLA's own buffer estimate of the compiled chain is reported beside it.
+
+This module measures and writes ``bench.json``; what the numbers are held against (the targets
+of the project's issues) and the markdown report live outside the library, in
+``experiments/bench_report.py`` (``make bench`` runs both).
 """
 
 from __future__ import annotations
@@ -25,10 +29,9 @@ import numpy as np
 
 from stereojax import chain
 from stereojax.app.baselines import sgbm_disparity
-from stereojax.chain import STAGES
 from stereojax.config import preset
 from stereojax.data.datasets import DEFAULT_DATA, load_builtin_sample
-from stereojax.data.io import atomic_output, write_json
+from stereojax.data.io import write_json
 from stereojax.inference.prepare import prepare_pair
 from stereojax.inference.memory import peak_rss_bytes
 from stereojax.inference.predictor import Predictor
@@ -54,8 +57,6 @@ def _bench_pair(shape=KITTI_SHAPE, data=None):
         left, right = cv2.imread(str(left_p)), cv2.imread(str(right_p))
         src = "KITTI 2015 000021"
     else:
-        from stereojax.data.datasets import load_builtin_sample
-
         s = load_builtin_sample()
         left, right = s.left, s.right
         src = "built-in Motorcycle, resized"
@@ -364,327 +365,8 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -
               "jax": jax.__version__, "backend": jax.default_backend(), "sgbm_s": sgbm,
               "sgbm_padded_s": sgbm_pad, "census_stages": stages, "profiles": profiles,
               "chains": chains, "best": best, "processes": procs, "demo": demo,
-              "accuracy": accuracy_records(out_dir), "matmul_gflop_s": rate, "anchors": anchors,
+              "matmul_gflop_s": rate, "anchors": anchors,
               "config_census": cfg.to_dict()}
     write_json(out_dir / "bench.json", result)
-    with atomic_output(out_dir / "bench.md") as tmp:
-        Path(tmp).write_text(format_bench(result))
-    print(f"-> {out_dir}/bench.json, {out_dir}/bench.md")
+    print(f"-> {out_dir}/bench.json (the report with the issues' targets: python experiments/bench_report.py)")
     return result
-
-
-#: the targets of issue 16, checked by format_bench
-TARGETS = {"best_s": 6.0, "best_stretch_s": 3.0, "census_x_sgbm": 20.0, "peak_rss_bytes": 2e9,
-           "second_process_extra_s": 5.0}
-#: the targets of issue 25 (ratios to OpenCV SGBM timed in the same run; peak RSS of a predict process)
-BAND_TARGETS = {"census_x_sgbm": 10.0, "compact_x_sgbm": 25.0, "best_chain_x_sgbm": 15.0,
-                "peak_rss_gib": 1.2}
-
-
-#: the targets of issue 26 (`best` in two seconds): ratios to OpenCV SGBM of the same run, `best`'s
-#: share of Pandora's time (make bench-anchors), peak RSS of a `best` predict process, make demo's
-#: warm computation, validation > 3 px on KITTI 2015 000021-000030
-BEST_TARGETS = {"best_x_sgbm": 30.0, "stretch_x_sgbm": 15.0, "stretch_val": 3.92, "pandora_share": 0.2,
-                "peak_rss_gib": 1.2, "demo_s": 5.0, "val": 3.97}
-
-
-#: the targets of issue 36 (one pass through the chain): ratios to SGBM of the same run; peak RSS of
-#: a census and a compact predict process with the compiled chain read from the cache
-CHAIN_TARGETS = {"census_x_sgbm": 6.0, "compact_x_sgbm": 15.0, "best_chain_x_sgbm": 8.0, "peak_rss_gib": 1.0}
-
-#: the stages whose cost entries per second the report sets against OpenCV's (issue 36)
-RATE_STAGES = ("coarse pass (bands)", "matching cost", "candidate chain", "CBCA before SGM", "SGM",
-               "CBCA after SGM", "right view + WTA")
-
-
-def entry_rates(r: dict) -> list[dict]:
-    """Cost entries per second of the band kernels of each profiled chain against OpenCV SGBM's
-    (its H x W x D entries in its measured time, cost and every path included): one row per
-    (chain, stage) of :data:`RATE_STAGES` that ran, with ``x_opencv`` the time per entry
-    relative to OpenCV's."""
-    h, w = r["shape"]
-    sgbm_rate = h * w * r["max_disp"] / r["sgbm_padded_s"]
-    chains = [("census", r["census_stages"])] + [(m, p["stages"]) for m, p in r["profiles"].items()]
-    rows = []
-    for chain_name, stages in chains:
-        for name in RATE_STAGES:
-            t = stages.get(name)
-            if not t or not t.get("entries") or t["warm_s"] <= 0:
-                continue
-            if chain_name != "census" and name == "matching cost":
-                continue          # the learned head: network time, not a band kernel
-            rate = t["entries"] / t["warm_s"]
-            rows.append({"chain": chain_name, "stage": name, "entries": t["entries"], "warm_s": t["warm_s"],
-                         "rate": rate, "x_opencv": sgbm_rate / rate})
-    return rows
-
-
-def chain_targets(r: dict) -> list[str]:
-    """The lines on issue 36's targets: met, or by how much they are missed and which stage holds it."""
-    sg, chains, t = r["sgbm_padded_s"], r["chains"], CHAIN_TARGETS
-    rates = {(row["chain"], row["stage"]): row for row in entry_rates(r)}
-
-    def held(stages: dict, chain_name: str) -> str:
-        name, v = max(((n, v) for n, v in stages.items() if n not in NETWORK_STAGES or chain_name == "census"),
-                      key=lambda kv: kv[1]["warm_s"])
-        rate = rates.get((chain_name, name))
-        per = (f", {rate['rate'] / 1e6:.0f} M entries/s, {rate['x_opencv']:.1f}× OpenCV's time per entry"
-               if rate else "")
-        return f"Held most by {name} ({v['warm_s']:.2f} s{per}); slowest: {_top(stages)}."
-
-    out = []
-    if "warm_s" in chains.get("census", {}):
-        _target_line(out, "census chain, × SGBM", chains["census"]["warm_s"] / sg, t["census_x_sgbm"], "×",
-                     held(r["census_stages"], "census"))
-    prof = r["profiles"].get("kitti2015_compact")
-    if prof and "warm_s" in chains.get("kitti2015_compact", {}):
-        _target_line(out, "`kitti2015_compact`, × SGBM", chains["kitti2015_compact"]["warm_s"] / sg,
-                     t["compact_x_sgbm"], "×", held(prof["stages"], "kitti2015_compact"))
-    prof = r["profiles"].get("kitti2015")
-    if prof and "warm_s" in chains.get("kitti2015", {}):
-        net = _network_s(prof)
-        rest = chains["kitti2015"]["warm_s"] - net
-        _target_line(out, "the chain around `kitti2015`'s tower and head, × SGBM", rest / sg, t["best_chain_x_sgbm"],
-                     "×", f"{rest:.2f} s of {chains['kitti2015']['warm_s']:.2f} s (tower + head {net:.2f} s). "
-                     + held(prof["stages"], "kitti2015"))
-    for m in ("census", "kitti2015_compact"):
-        p = r["processes"].get(m)
-        if p:
-            _target_line(out, f"peak RSS of a `{m}` predict process, compiled chain from the cache",
-                         p["cache_hit"]["peak_rss_gib"], t["peak_rss_gib"], " GiB",
-                         f"Cold cache: {p['cold']['peak_rss_gib']:.2f} GiB; the rest is the interpreter, jax and "
-                         "XLA's buffers of the chain.")
-    return out
-
-
-def rate_table(r: dict) -> list[str]:
-    """The markdown table of :func:`entry_rates`."""
-    h, w = r["shape"]
-    n = h * w * r["max_disp"]
-    lines = [f"OpenCV SGBM: {n / 1e6:.0f} M entries ({w}x{h}x{r['max_disp']}) in {r['sgbm_padded_s']:.3f} s = "
-             f"{n / r['sgbm_padded_s'] / 1e6:.0f} M entries/s (its cost, every path and its WTA).", "",
-             "| chain | stage | M entries | warm s | M entries/s | × OpenCV's time per entry |", "|---|---|---|---|---|---|"]
-    lines += [f"| {x['chain']} | {x['stage']} | {x['entries'] / 1e6:.1f} | {x['warm_s']:.3f} | {x['rate'] / 1e6:.0f} | "
-              f"{x['x_opencv']:.1f} |" for x in entry_rates(r)]
-    return lines
-
-
-def accuracy_records(out_dir: Path) -> dict:
-    """The accuracy records the targets of issue 26 are read against (other runs, not this one):
-    the full KITTI network's and the chosen student's validation > 3 px, and the Middlebury
-    student's fold mean, each with the file it comes from (missing files are left out)."""
-    out = {}
-
-    def read(name):
-        f = Path(out_dir) / name
-        return json.loads(f.read_text()) if f.is_file() else None
-
-    dd, fin, mid = read("dense_distill.json"), read("dense_distill_final.json"), read("middlebury_folds_student.json")
-    if dd:
-        out["kitti2015"] = {"val": dd["full"]["val"], "seconds": dd["full"]["seconds"], "source": "dense_distill.md"}
-    if fin:
-        out["student"] = {"name": fin["point"], "val": fin["val"], "seconds": fin["seconds"], "limit": fin["best_limit"],
-                          "becomes_best": fin["becomes_best"], "source": "dense_distill_final.md"}
-    if mid:
-        out["middlebury_student"] = {"bad3": mid["mean"]["learned"]["bad3"], "limit": mid["student_bar"],
-                                     "seconds": mid["seconds"]["learned"], "becomes_best": mid["becomes_best"],
-                                     "source": "middlebury_folds_student.md"}
-    return out
-
-
-def _ordered(stages: dict) -> list:
-    """The rows of a stage profile in the chain's order (JSON round trips sort the keys)."""
-
-    order = [s.name for s in STAGES]
-    return sorted(stages.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else len(order))
-
-
-def _arch(net: dict) -> str:
-    return f"tower {net['features']} maps, head {'-'.join(map(str, net['widths']))}"
-
-
-def _target_line(out: list, name: str, value: float, goal: float, unit: str, why: str = "") -> None:
-    """Append one target's line to ``out``: met, or by how much it is missed and why."""
-    ok = value <= goal
-    out.append(f"* {name} ≤ {goal:g}{unit}: {value:.2f}{unit} — " + ("met." if ok else
-               f"**not met**, {value - goal:.2f}{unit} over. {why}").rstrip())
-
-
-def _top(stages: dict, n: int = 3) -> str:
-    """The ``n`` slowest stages, "name s, ..."."""
-    return ", ".join(f"{name} {v['warm_s']:.2f} s" for name, v in
-                     sorted(stages.items(), key=lambda kv: -kv[1]["warm_s"])[:n])
-
-
-def _network_s(prof: dict) -> float:
-    """Warm seconds of a learned chain's tower and head stages (its profile's)."""
-    return sum(v["warm_s"] for name, v in prof["stages"].items() if name in NETWORK_STAGES)
-
-
-def best_targets(r: dict) -> list[str]:
-    """The lines on issue 26's targets: met, or by how much they are missed and why."""
-    sg, t, best = r["sgbm_padded_s"], BEST_TARGETS, r["best"]
-    chain, prof = r["chains"].get(best, {}), r["profiles"].get(best)
-    acc = r.get("accuracy") or {}
-    student, val = acc.get("student"), acc.get(best, {}).get("val")
-    out = []
-    if student:
-        verdict = "stays the full network" if not student["becomes_best"] else "is that student"
-        short = (f"The fastest student ({student['name']}) scores {student['val']:.2f} % against the bound "
-                 f"{student['limit']:g} % at {student['seconds']:.2f} s ({student['source']}), so `best` {verdict}")
-    else:
-        short = "No student record (experiments/results/dense_distill_final.json)"
-    if "warm_s" in chain and prof:
-        net = _network_s(prof)
-        _target_line(out, f"`best` (= `{best}`), × SGBM", chain["warm_s"] / sg, t["best_x_sgbm"], "×",
-                     f"{chain['warm_s']:.2f} s, of which tower + head {net:.2f} s ({prof['network_tflop']:.1f} TFLOP "
-                     f"at {prof['evals_per_pixel']:g} head evaluations per pixel) and the chain around them "
-                     f"{chain['warm_s'] - net:.2f} s. {short}.")
-        if val is not None:
-            stretch = chain["warm_s"] / sg <= t["stretch_x_sgbm"] and val <= t["stretch_val"]
-            out.append(f"* stretch, ≤ {t['stretch_x_sgbm']:g}× SGBM at ≤ {t['stretch_val']:g} %: "
-                       f"{chain['warm_s'] / sg:.0f}× at {val:.2f} % — " + ("met." if stretch else "**not met**."))
-    a = r.get("anchors")
-    if a and a.get("pandora_s"):
-        _target_line(out, "`best` / Pandora's time (make bench-anchors, its own run)", a["best_s"] / a["pandora_s"],
-                     t["pandora_share"], "×", f"`best` {a['best_s']:.1f} s, Pandora {a['pandora_s']:.1f} s "
-                     "(anchors.md); the same head as above.")
-    p = r["processes"].get("best")
-    if p:
-        _target_line(out, "peak RSS of a `best` predict process (cold cache)", p["cold"]["peak_rss_gib"],
-                     t["peak_rss_gib"], " GiB", "See issue 25's line above.")
-    demo, mid = r.get("demo") or {}, acc.get("middlebury_student")
-    if "warm_s" in demo:
-        h, w = demo["shape"]
-        why = (f"{demo['model']}, {w}x{h}, {demo['max_disp']} disparities, with the confidence map; compiling "
-               f"{demo['compile_s']:.1f} s.")
-        if mid:
-            why += (f" The Middlebury student's fold mean {mid['bad3']:.2f} % > 3 px misses the bound "
-                    f"{mid['limit']:g} % ({mid['source']}, {mid['seconds']:.1f} s per scene), so the demo "
-                    "keeps the full network.")
-        _target_line(out, "`make demo`'s computation after compiling (fresh process)", demo["warm_s"],
-                     t["demo_s"], " s", why)
-    if val is not None:
-        _target_line(out, f"validation > 3 px of `best` (KITTI 2015 000021-000030, band chain; "
-                     f"{acc[best]['source']})", val, t["val"], " %",
-                     "The full network on the band chain (3.92 % over the full range).")
-    return out
-
-
-def band_targets(r: dict) -> list[str]:
-    """The lines on issue 25's targets (ratios to SGBM of this run; peak RSS of predict processes)."""
-    sg, chains, t = r["sgbm_padded_s"], r["chains"], BAND_TARGETS
-    cfg = (r.get("config_census") or {}).get("band") or {}
-    k = cfg.get("width", 0)
-    h, w = r["shape"]
-    out = []
-    if "warm_s" in chains.get("census", {}):
-        _target_line(out, "census chain, × SGBM", chains["census"]["warm_s"] / sg, t["census_x_sgbm"], "×",
-                      f"Largest stages: {_top(r['census_stages'])}; the band kernels gather each neighbour's band "
-                      f"(K = {k}: f32[H, W, K] is {h * w * max(k, 1) * 4 / 1e6:.0f} MB) where the full range shifts slices.")
-    prof = r["profiles"].get("kitti2015_compact")
-    if prof and "warm_s" in chains.get("kitti2015_compact", {}):
-        _target_line(out, "`kitti2015_compact`, × SGBM", chains["kitti2015_compact"]["warm_s"] / sg, t["compact_x_sgbm"], "×",
-                      f"Largest stages: {_top(prof['stages'])}.")
-    prof = r["profiles"].get("kitti2015")
-    if prof and "warm_s" in chains.get("kitti2015", {}):
-        net = _network_s(prof)
-        rest = chains["kitti2015"]["warm_s"] - net
-        _target_line(out, "`kitti2015` without its tower and head, × SGBM", rest / sg, t["best_chain_x_sgbm"], "×",
-                      f"{rest:.2f} s of {chains['kitti2015']['warm_s']:.2f} s (tower + head {net:.2f} s); "
-                      f"largest other stages: {_top({n: v for n, v in prof['stages'].items() if n not in NETWORK_STAGES})}.")
-    for m, p in r["processes"].items():
-        peak = p["cold"]["peak_rss_gib"]
-        _target_line(out, f"peak RSS of a `{m}` predict process (cold cache), GiB", peak, t["peak_rss_gib"], " GiB",
-                      f"With the compiled chain read from the cache: {p['cache_hit']['peak_rss_gib']:.2f} GiB "
-                      "(compiling takes about 0.6 GiB); the rest is XLA's buffers of the chain.")
-    return out
-
-
-def format_bench(r: dict) -> str:
-    """The markdown report of :func:`run_bench`'s result."""
-    sg = r["sgbm_padded_s"]
-    chains, profiles, t = r["chains"], r["profiles"], TARGETS
-    h, w = r["shape"]
-
-    def ratio(x):
-        return f"{x / sg:.0f}x"
-
-    def target(ok):
-        return "met" if ok else "**not met**"
-
-    lines = [f"# Benchmark: {r['frame']}, {w}x{h}, {r['max_disp']} disparities, {r['cpu_cores']} CPU cores, "
-             f"jax {r['jax']} ({r['backend']}), {r.get('machine', '')}", "",
-             "All numbers from one run of `make bench` (`stereojax bench`); OpenCV StereoSGBM timed at the "
-             "start and the end of the run (median), so ratios compare like with like.", "",
-             "## Warm time per frame (after compilation), ratio to OpenCV SGBM", "",
-             "| method | network | head evaluations / pixel | warm s | × SGBM | target |", "|---|---|---|---|---|---|",
-             f"| OpenCV StereoSGBM (MODE_SGBM_3WAY, left-padded) | | | {sg:.3f} | 1x | |"]
-    for which in LEARNED:
-        chain, prof = chains[which], profiles[which]
-        if "warm_s" not in chain:
-            continue
-        is_best = which == r["best"]
-        ok = chain["warm_s"] <= t["best_s"]
-        goal = (f"`best` ≤ {t['best_s']:g} s: {target(ok)}; stretch ≤ {t['best_stretch_s']:g} s: "
-                f"{target(chain['warm_s'] <= t['best_stretch_s'])}" if is_best else
-                f"(≤ {t['best_s']:g} s: {'yes' if ok else 'no'}; not `best`)")
-        label = f"`--method best` = `{which}`" if is_best else f"`--weights {which}`"
-        lines.append(f"| stereojax {label} | {_arch(prof['net'])} | {prof['evals_per_pixel']:g} | "
-                     f"{chain['warm_s']:.2f} | {ratio(chain['warm_s'])} | {goal} |")
-    full = profiles["kitti2015"]
-    ex = full["exact"]
-    lines.append(f"| stereojax `kitti2015`, exact head (extrapolated from 8 disparities) | "
-                 f"{_arch(full['net'])} | {r['max_disp']} | {ex['chain_s']:.0f} | {ratio(ex['chain_s'])} | |")
-    census = chains["census"]
-    if "warm_s" in census:
-        lines.append(f"| stereojax census chain | | | {census['warm_s']:.2f} | {ratio(census['warm_s'])} | "
-                     f"≤ {t['census_x_sgbm']:g}x: {target(census['warm_s'] <= t['census_x_sgbm'] * sg)} |")
-    a = r.get("anchors")
-    if a and a.get("pandora_s"):
-        lines += ["", f"CNES Pandora {a.get('pandora_version', '')} (MC-CNN-fast, Middlebury weights, + libsgm), "
-                  f"timed by `make bench-anchors` in a run of its own beside stereojax and SGBM: Pandora "
-                  f"{a['pandora_s']:.1f} s, `best` {a['best_s']:.1f} s"
-                  + (f", `kitti2015_compact` {a['compact_s']:.1f} s" if "compact_s" in a else "")
-                  + f", SGBM {a['sgbm_s']:.3f} s; so `best` is {a['best_s'] / a['pandora_s']:.2f}× Pandora's time"
-                  + (f" and `kitti2015_compact` {a['compact_s'] / a['pandora_s']:.2f}×" if "compact_s" in a else "")
-                  + " ([anchors.md](anchors.md))."]
-    if all("entries" in v for v in r["census_stages"].values()):
-        lines += ["", "## The targets of issue 36 (one pass through the chain), met or missed, and why", ""]
-        lines += chain_targets(r)
-        lines += ["", "## Cost entries per second of the band kernels, against OpenCV's", ""]
-        lines += rate_table(r)
-    lines += ["", "## The targets of issue 25 (bands), met or missed, and why", ""]
-    lines += band_targets(r)
-    lines += ["", "## The targets of issue 26 (`best` in two seconds), met or missed, and why", ""]
-    lines += best_targets(r)
-    lines += ["", "## Processes: compile once, peak memory", "",
-              "| method | first process (cold cache) s | second process (cache hit) s | compile in 1st / 2nd s "
-              "| peak RSS GiB | targets |", "|---|---|---|---|---|---|"]
-    for m, p in r["processes"].items():
-        cold, hit = p["cold"], p["cache_hit"]
-        warm = chains[r["best"] if m == "best" else m].get("warm_s", float("nan"))
-        checks = [f"2nd ≤ warm + {t['second_process_extra_s']:g} s: "
-                  f"{target(hit['wall_s'] <= warm + t['second_process_extra_s'])}"]
-        peak = max(cold["peak_rss_gib"], hit["peak_rss_gib"])
-        if m == "best":
-            checks.append(f"peak RSS ≤ {t['peak_rss_bytes'] / 1e9:g} GB: {target(peak * 2 ** 30 <= t['peak_rss_bytes'])}")
-        lines.append(f"| {m} | {cold['wall_s']:.1f} | {hit['wall_s']:.1f} | {cold.get('compile_s', float('nan')):.1f} / "
-                     f"{hit.get('compile_s', float('nan')):.1f} | {peak:.2f} | {'; '.join(checks)} |")
-    lines += ["", "(wall time of the whole `stereojax predict` process: interpreter start, imports, loading, "
-              "compiling or reading the compiled chain from the cache, the run, writing outputs.)"]
-    for which in LEARNED:
-        prof = profiles[which]
-        ex = prof["exact"]
-        lines += ["", f"## Where the time of `{which}` goes (each stage jitted alone, warm)", "",
-                  "| stage | warm s | compile s |", "|---|---|---|"]
-        lines += [f"| {k} | {v['warm_s']:.2f} | {v['compile_s']:.1f} |" for k, v in _ordered(prof["stages"])]
-        lines += ["", f"Network: {prof['network_tflop'] * 1e3:.0f} GFLOP per frame, of which the head after its "
-                  f"split first layer {prof['head_tflop'] * 1e3:.0f} GFLOP at {prof['evals_per_pixel']:g} evaluations "
-                  f"per pixel; its exact head {ex['tflop']:.1f} TFLOP, {ex['warm_s']:.0f} s extrapolated "
-                  f"({ex['gflop_s']:.0f} GFLOP/s; dense f32 matmul peak here {r['matmul_gflop_s']:.0f} GFLOP/s)."]
-    lines += ["", "## Census chain stages (each jitted alone, warm)", "", "| stage | warm s | compile s |", "|---|---|---|"]
-    lines += [f"| {k} | {v['warm_s']:.3f} | {v['compile_s']:.2f} |" for k, v in _ordered(r["census_stages"])]
-    lines += ["", "Peak RSS of a process that compiles and runs the chain (no cache): " + ", ".join(
-        f"{m} {c.get('peak_rss_gib', float('nan')):.2f} GiB" for m, c in chains.items()) + ".", ""]
-    return "\n".join(lines)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -57,7 +58,6 @@ def run_demo(sample, run, out: Path) -> dict:
 def overview(out: Path, scores: dict, width: int = 360) -> np.ndarray:
     """``u8[H, W, 3]``: the demo's outputs in one picture, each captioned with its scale: the left
     image, the colour disparity, the colour depth and the error map (from the files in ``out``)."""
-    import json
 
     disp_scale = json.loads((out / "disparity_color.json").read_text())
     depth_scale = json.loads((out / "depth_color.json").read_text())

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from stereojax import metrics
 from stereojax.app.baselines import sgbm_disparity
@@ -141,8 +142,6 @@ def evaluate_frames(frames: Iterable, methods: Mapping[str, Callable], max_disp,
 
     bar = None
     if progress is not None:
-        from tqdm import tqdm
-
         bar = tqdm(total=total if total is not None else _length(frames), desc=progress, unit="frame",
                    file=sys.stderr, dynamic_ncols=True)
     keys = list(methods) if regions is None else [region_key(m, r) for m in methods for r in regions]

@@ -25,7 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from jax.sharding import Mesh
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from tensorboardX import SummaryWriter
 from tqdm import tqdm
 
 from stereojax.chain import learned_cost
@@ -37,6 +38,7 @@ from stereojax.devices import count
 from stereojax.errors import ConfigError, TrainingError
 from stereojax.interrupt import Interrupted, stop_on_signals
 from stereojax.learning import losses
+from stereojax.learning.dense_distill import dense_loss
 from stereojax.learning.sampling import (AUGMENT_MCCNN, PatchData, SamplerConfig, build_patch_data,
                                          sample_batch, sample_distill_batch)
 from stereojax.models import checkpoint
@@ -250,8 +252,6 @@ def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None, teacher=None
     else:
         patches = sample_batch(key, data, cfg.batch, cfg.net.patch_size, cfg.sampler)
     if mesh is not None:
-        from jax.sharding import NamedSharding, PartitionSpec
-
         split = NamedSharding(mesh, PartitionSpec("data"))
         patches = tuple(jax.lax.with_sharding_constraint(x, split) for x in patches)
     targets = None
@@ -268,8 +268,6 @@ def train_step(state, data: PatchData, cfg: TrainConfig, mesh=None, teacher=None
             loss = loss + cfg.distill * jnp.mean(jnp.stack(
                 [losses.bce(s, t).mean() for s, t in zip(scores, targets)]))
         if cfg.dense > 0:
-            from stereojax.learning.dense_distill import dense_loss
-
             loss = loss + cfg.dense * dense_loss(model, variables, dense, jax.random.fold_in(key, 11),
                                                  cfg.dense_batch, cfg.net.patch_size)
         return loss, (updates, s_pos, s_neg)
@@ -328,8 +326,6 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     :class:`~stereojax.matching_cost.learned.LearnedModel` whose scores ``cfg.distill`` distils.
     dense: the :class:`~stereojax.learning.dense_distill.DenseTargets` that ``cfg.dense`` distils.
     """
-    from tensorboardX import SummaryWriter
-
 
     cfg.validate()
     if (cfg.distill > 0) != (teacher is not None):
@@ -365,8 +361,6 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
                               f"{', ...' if len(differ) > 3 else ''}); use another --out or the same settings")
         state, _ = checkpoint.load(ckpt, state, expect_net=wanted["net"])
     if mesh is not None:   # parameters, optimiser state and the patch data on every device
-        from jax.sharding import NamedSharding, PartitionSpec
-
         every = NamedSharding(mesh, PartitionSpec())
         state, data = jax.device_put(state, every), jax.device_put(data, every)
     if main_process:
@@ -380,8 +374,6 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
     samples_per_step = (4 if cfg.distill else 3) * cfg.batch + (cfg.dense_batch if cfg.dense else 0)
     teacher_args = {} if teacher is None else {"teacher": teacher.variables, "teacher_net": teacher.net}
     if teacher is not None and mesh is not None:
-        from jax.sharding import NamedSharding, PartitionSpec
-
         teacher_args = {"teacher": jax.device_put(teacher.variables, NamedSharding(mesh, PartitionSpec())),
                         "teacher_net": teacher.net}
     if dense is not None:
