@@ -2,7 +2,7 @@
 with reuse, and scoring of learned and classical methods in the full chain.
 
 Every script takes ``--quick``: a tiny network trained for a few steps and one cropped frame per
-data set, a smoke test of the whole path in well under a minute (``tests/test_experiments.py``
+data set, a smoke test of the whole path in well under a minute (``tests/system/test_experiments.py``
 runs every script that way). Without ``--quick`` the scripts run the *experiment schedule*: the
 shipped network (64 feature maps, downsize head) trained for ``--steps`` SGD steps (default
 1000 of 150 + 150 + 150 patches, about 2 min on 2 cores) and scored in the chain of

@@ -13,7 +13,7 @@ A :class:`CostVolume` holds, for every pixel of the left (reference) view, the c
   every stage runs with its full-volume kernel; True for per-pixel bands.
 
 The full range is the special case ``offset == 0, K == D``: a stage given a banded volume whose
-band covers the whole range returns what its full-volume kernel returns (tests/test_bands.py).
+band covers the whole range returns what its full-volume kernel returns (tests/system/test_bands.py).
 """
 
 from __future__ import annotations

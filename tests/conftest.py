@@ -7,7 +7,7 @@ import pytest
 
 #: The suite is bound by compilation (each chain it runs is compiled once, 2-15 s on the CPU).
 #: It compiles with XLA:CPU's elemental emitters instead of the newer fusion emitters: about a
-#: third less compile time, and the same disparities bit for bit (tests/test_golden.py compares
+#: third less compile time, and the same disparities bit for bit (tests/system/test_golden.py compares
 #: with maps made by the default compiler). Users' runs keep the default, whose programs run
 #: faster once compiled. Set here, before jax starts, so that every test process inherits it,
 #: the CLI subprocesses included; STEREOJAX_TEST_DEFAULT_XLA=1 runs the suite as users compile.

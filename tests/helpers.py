@@ -1,9 +1,15 @@
 """Synthetic inputs shared by the test modules:
-textured images, pairs shifted by a known disparity, training samples, a tiny KITTI tree."""
+textured images, pairs shifted by a known disparity, training samples, a tiny KITTI tree, pair
+folders, the banded census chain, the CLI run in-process and a subprocess environment."""
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def textured(h, w, seed=0):
@@ -23,6 +29,43 @@ def shifted_pair(d, h=40, w=64, seed=0):
     right = rng.integers(0, 256, (h, w)).astype(np.uint8)
     right[:, : w - d] = left[:, d:]          # left(x) == right(x - d)
     return left, right
+
+
+def offset_pair(d, h=48, w=96, seed=3):
+    """left(x) == right(x - d) for any integer d (negative: the match lies to the right)."""
+    big = textured(h, w + 2 * abs(d) + 2, seed)
+    c = abs(d) + 1
+    left = big[:, c: c + w]
+    right = big[:, c + d: c + d + w]
+    return left, right
+
+
+def banded_census(max_disp=64, width=16):
+    """The census preset with disparity bands ``width`` wide."""
+    import dataclasses
+
+    import stereojax
+
+    cfg = stereojax.preset("census", max_disp)
+    return dataclasses.replace(cfg, band=dataclasses.replace(cfg.band, width=width))
+
+
+def pair_folders(root: Path, names, right_names=None, h=48, w=80):
+    """Folders ``root/L`` and ``root/R`` of shifted pairs named ``names`` (right images only for
+    ``right_names`` when given)."""
+    from stereojax.data import io
+
+    for i, n in enumerate(names):
+        left, right = shifted_pair(4, h=h, w=w, seed=i)
+        io.write_png(root / "L" / f"{n}.png", left)
+        if right_names is None or n in right_names:
+            io.write_png(root / "R" / f"{n}.png", right)
+    return root / "L", root / "R"
+
+
+def cache_env(cache: Path) -> dict:
+    """The environment of a ``stereojax`` subprocess that compiles into the cache folder ``cache``."""
+    return {**os.environ, "PYTHONPATH": str(ROOT), "STEREOJAX_CACHE_DIR": str(cache)}
 
 
 def training_samples(n=2, h=40, w=96, d=5):

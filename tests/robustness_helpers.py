@@ -1,6 +1,6 @@
-"""Helpers of the robustness tests (test_robustness_*.py, test_memory_guard.py): the CLI run
-in-process with its one error line, pair files, the completeness check of an output folder, and
-SIGKILL of a child process. ``ROBUSTNESS_LOG=file.jsonl`` records every observed message."""
+"""Helpers of the robustness tests (system/test_robustness_*.py, inference/test_memory.py and others):
+the CLI run in-process with its one error line, pair files, the completeness check of an output
+folder, and SIGKILL of a child process. ``ROBUSTNESS_LOG=file.jsonl`` records every observed message."""
 
 from __future__ import annotations
 

@@ -1,10 +1,13 @@
 """The chain's order is written once (stereojax.chain.STAGES): the whole chain, its front, its two
 programs, the coarse pass, the candidate chain and `stereojax bench` all run that list; the state
-between the stages is a typed pytree."""
+between the stages is a typed pytree; the per-pixel limits stage, and the bands it moves."""
+
+from __future__ import annotations
 
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -14,8 +17,9 @@ from stereojax.app import bench
 from stereojax.inference import programs
 from stereojax.matching_cost.learned import LearnedModel
 from stereojax.models.nets import NetConfig, init_params
+from stereojax.volume import BIG, CostVolume
 
-from .helpers import shifted_pair
+from .helpers import banded_census as _banded, shifted_pair
 
 
 @pytest.fixture
@@ -136,3 +140,51 @@ def test_the_state_is_a_frozen_pytree():
     assert len(leaves) == 2            # the two images; the empty fields are no leaves
     out = jax.jit(lambda s: chain.run(chain.STAGES, s, stereojax.preset("census", 16)))(st)
     assert isinstance(out, chain.State) and out.vol is not None and out.disparity.shape == left.shape
+
+
+def test_the_limits_stage_against_numpy():
+    """Entries outside a pixel's limits cost BIG, the others are untouched (full range
+    and bands)."""
+    rng = np.random.default_rng(0)
+    h, w, d, k = 5, 7, 12, 4
+    lo = rng.integers(0, 8, (h, w)).astype(np.int32)
+    hi = (lo + rng.integers(1, 5, (h, w))).astype(np.int32)
+    lim = jnp.asarray(np.stack([lo, hi]))
+    full = rng.random((h, w, d)).astype(np.float32)
+    got = chain._limits(chain.State(None, None, limits=lim, vol=CostVolume.full(jnp.asarray(full))), None).vol.cost
+    disp = np.arange(d)[None, None, :]
+    want = np.where((disp >= lo[..., None]) & (disp < hi[..., None]), full, BIG)
+    np.testing.assert_array_equal(np.asarray(got), want)
+    off = rng.integers(0, d - k + 1, (h, w)).astype(np.int32)
+    band = rng.random((h, w, k)).astype(np.float32)
+    vol = CostVolume.band(jnp.asarray(band), jnp.asarray(off), d)
+    got = chain._limits(chain.State(None, None, limits=lim, vol=vol), None).vol.cost
+    disp = off[..., None] + np.arange(k)
+    want = np.where((disp >= lo[..., None]) & (disp < hi[..., None]), band, BIG)
+    np.testing.assert_array_equal(np.asarray(got), want)
+
+
+def test_bands_move_inside_the_limits():
+    """A band moves by as little as it takes: inside limits K wide or wider, around narrower
+    ones (a band that already holds them stays); always inside 0 .. D - K."""
+    cfg = _banded(64, 16)
+    rng = np.random.default_rng(1)
+    off = rng.integers(0, 49, (6, 9)).astype(np.int32)
+    lo = rng.integers(0, 60, (6, 9)).astype(np.int32)
+    hi = np.minimum(lo + rng.integers(1, 40, (6, 9)), 64).astype(np.int32)
+    got = np.asarray(chain.limit_bands(jnp.asarray(off), jnp.asarray(np.stack([lo, hi])), cfg))
+    want = off.copy()
+    for i, j in np.ndindex(off.shape):                  # the nearest start whose band fits or holds
+        starts = [s for s in range(0, 49) if (lo[i, j] <= s and s + 16 <= hi[i, j]) or
+                  (s <= lo[i, j] and hi[i, j] <= s + 16)]
+        if starts:
+            want[i, j] = min(starts, key=lambda s: abs(s - off[i, j]))
+        else:                                            # limits reach past 0 .. D - K: its nearest end
+            want[i, j] = np.clip(off[i, j], 0, 48)
+    np.testing.assert_array_equal(got, want)
+    wide = hi - lo >= 16
+    assert np.all(got[wide] >= lo[wide]) and np.all(got[wide] + 16 <= hi[wide])
+    narrow = ~wide & (hi <= 64)
+    assert np.all(got[narrow] <= lo[narrow]) and np.all(got[narrow] + 16 >= hi[narrow])
+    holds = (off <= lo) & (hi <= off + 16)
+    np.testing.assert_array_equal(got[holds], off[holds])        # already holding them: unmoved

@@ -4,16 +4,13 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from stereojax import metrics
 from stereojax.errors import StereoInputError
 
 N = np.nan
 
-
-# ---- interpolate_background --------------------------------------------------------------------
 
 def test_interpolate_background_row_by_hand():
     disp = np.array([[N, 5, N, N, 2, N, N]], np.float32)
@@ -81,12 +78,14 @@ def test_interpolate_background_matches_devkit_loop(cells):
     np.testing.assert_array_equal(got, _devkit_row(values.tolist(), valid.tolist()))
 
 
-# ---- evaluate ----------------------------------------------------------------------------------
-
 GT = np.array([[10, 20, 100],
                [50, 0, 4]], np.float32)
+
+
 GT_VALID = np.array([[1, 1, 1],
                      [1, 0, 1]], bool)
+
+
 DISP = np.array([[10.5, 23, 104],
                  [60, 7, 2]], np.float32)
 
@@ -156,8 +155,6 @@ def test_evaluate_no_estimate_at_all():
     assert m["epe"] == pytest.approx((10 + 20 + 100 + 50 + 4) / 5)
 
 
-# ---- mean_metrics ------------------------------------------------------------------------------
-
 def test_mean_metrics_is_a_plain_mean_over_frames():
     rows = [{"bad3": 10.0, "epe": 1.0, "n_gt": 100, "frame": "a"},
             {"bad3": 30.0, "epe": float("nan"), "n_gt": 900, "frame": "b"}]
@@ -167,3 +164,16 @@ def test_mean_metrics_is_a_plain_mean_over_frames():
     assert m["n_gt"] == 1000 and m["n_frames"] == 2 and "frame" not in m
     with pytest.raises(StereoInputError, match="at least one frame"):
         metrics.mean_metrics([])
+
+
+def test_metrics_count_a_zero_estimate_as_missing():
+    from stereojax.metrics import evaluate
+
+    gt = np.full((20, 40), 10.0, np.float32)
+    disp = gt.copy()
+    disp[:, :10] = 0.0                                               # 0 = "no value", as in KITTI PNGs
+    with_zero = evaluate(disp, gt, None, fill="error")
+    assert with_zero["density"] == pytest.approx(75.0) and with_zero["bad3"] == pytest.approx(25.0)
+    disp[:, :10] = np.inf
+    assert evaluate(disp, gt, None, fill="error") == with_zero
+    assert evaluate(np.where(np.isinf(disp), 0, disp), gt, None)["density"] == pytest.approx(75.0)

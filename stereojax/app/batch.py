@@ -369,6 +369,37 @@ def frame_work(pair, out: Path, resolve: Callable, opts: dict):
                   "warnings": r["warnings"], "rss_mb": current_rss_bytes() / 2 ** 20}, None
 
 
+def _complete_frames(pairs, out: Path, resolve: Callable, opts: dict, verify: bool) -> tuple[list, list]:
+    """The frames an earlier run completed (their names), and those recorded as complete whose
+    files fail the check (``{"frame", "problem"}``)."""
+    skipped, damaged = [], []
+    for p in pairs:
+        ok, problem = _reusable(p, out, resolve, opts, verify)
+        if ok:
+            skipped.append(p[0])
+        elif problem:
+            damaged.append({"frame": p[0], "problem": problem})
+    return skipped, damaged
+
+
+def _batch_summary(pairs, rows, skipped, failed, damaged, interrupted, wall: float, workers, unmatched) -> dict:
+    """What ``summary.json`` holds after a batch (see :func:`predict_batch`)."""
+    compute = sum(r["seconds"] for r in rows)
+    n_dev = max(workers or 1, 1)
+    return {"frames": len(pairs), "ok": len(rows) + len(skipped), "computed": len(rows),
+            "skipped": len(skipped), "failed": failed,
+            "not_done": len(pairs) - len(rows) - len(skipped) - len(failed),
+            "interrupted": interrupted.signal_name if interrupted else None,
+            "devices": n_dev, "wall_s": wall,
+            "frames_per_s": len(rows) / wall if wall > 0 else 0.0,
+            "frames_per_s_warm": len(rows) * n_dev / compute if compute > 0 else 0.0,
+            "compile_s": sum(r["compile_s"] for r in rows), "peak_rss_mb": peak_rss_bytes() / 2 ** 20,
+            "warnings": sum(len(r["warnings"]) for r in rows),
+            "frames_with_warnings": [r["frame"] for r in rows if r["warnings"]],
+            "per_frame": rows, "skipped_frames": skipped, "damaged": damaged,
+            "unmatched": list(unmatched or [])}
+
+
 def predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devices, overwrite: bool,
                           verify: bool, unmatched, announced, mapper=None, workers: int | None = None,
                           where: str | None = None) -> dict:
@@ -384,13 +415,7 @@ def predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, device
         workers = max(len(devices), 1)
         where = f"{len(devices)} devices, one frame each at a time" if len(devices) > 1 else None
     remove_stale(out)
-    skipped, damaged = [], []
-    for p in ([] if overwrite else pairs):
-        ok, problem = _reusable(p, out, resolve, opts, verify)
-        if ok:
-            skipped.append(p[0])
-        elif problem:
-            damaged.append({"frame": p[0], "problem": problem})
+    skipped, damaged = ([], []) if overwrite else _complete_frames(pairs, out, resolve, opts, verify)
     done = set(skipped)
     todo = [p for p in pairs if p[0] not in done]
     rows, failed, described, interrupted = [], [], {announced} - {None}, None
@@ -425,21 +450,8 @@ def predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, device
                     bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
         except Interrupted as stop:
             interrupted = stop
-    wall = time.perf_counter() - t_start
-    compute = sum(r["seconds"] for r in rows)
-    n_dev = max(workers or 1, 1)
-    summary = {"frames": len(pairs), "ok": len(rows) + len(skipped), "computed": len(rows),
-               "skipped": len(skipped), "failed": failed,
-               "not_done": len(pairs) - len(rows) - len(skipped) - len(failed),
-               "interrupted": interrupted.signal_name if interrupted else None,
-               "devices": n_dev, "wall_s": wall,
-               "frames_per_s": len(rows) / wall if wall > 0 else 0.0,
-               "frames_per_s_warm": len(rows) * n_dev / compute if compute > 0 else 0.0,
-               "compile_s": sum(r["compile_s"] for r in rows), "peak_rss_mb": peak_rss_bytes() / 2 ** 20,
-               "warnings": sum(len(r["warnings"]) for r in rows),
-               "frames_with_warnings": [r["frame"] for r in rows if r["warnings"]],
-               "per_frame": rows, "skipped_frames": skipped, "damaged": damaged,
-               "unmatched": list(unmatched or [])}
+    summary = _batch_summary(pairs, rows, skipped, failed, damaged, interrupted, time.perf_counter() - t_start,
+                             workers, unmatched)
     write_json(out / "summary.json", summary)
     if interrupted:
         interrupted.summary = summary

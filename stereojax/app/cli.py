@@ -32,7 +32,6 @@ from stereojax.errors import ConfigError, StereoError, StereoInputError
 from stereojax.inference.compile_cache import enable
 from stereojax.inference.prepare import check_disp_range
 from stereojax.interrupt import Interrupted
-from stereojax.learning.train import TrainConfig, config_from_options, maybe_initialize_distributed, train_on_dataset
 from stereojax.models.registry import resolve
 from stereojax.progress import Phases
 
@@ -173,6 +172,11 @@ def cmd_demo(args) -> int:
 
 
 def cmd_train(args) -> int:
+    # imported here, not at the top: training brings optax and the training loop, which a
+    # predict, evaluate or demo process never needs (tests/system/test_speed.py checks it)
+    from stereojax.learning.train import (TrainConfig, config_from_options, maybe_initialize_distributed,
+                                          train_on_dataset)
+
     maybe_initialize_distributed()
     out = output_folder(args.out)
     if args.config:

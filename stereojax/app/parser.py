@@ -45,6 +45,9 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``stereojax`` parser: every command's arguments, declared one ``add_argument`` each.
+    Long because it is a list of declarations (no logic: the commands live in :mod:`stereojax.app.cli`);
+    split per command it would only scatter the shared options."""
     p = _OneLineParser(prog="stereojax", description="Stereo matching in JAX: disparity and depth from a "
                        "rectified pair. The matching cost is learned (an MC-CNN-style network, shipped "
                        "models for KITTI and Middlebury) or classical (census, SAD); then cross-based "

@@ -310,37 +310,10 @@ def _flat(d: dict, prefix: str = "") -> dict:
     return out
 
 
-def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None, out_dir,
-        resume: bool = False, progress: bool = True, stop_after: int | None = None,
-        info: dict | None = None, devices: int | None = 1, init=None, teacher=None, dense=None) -> dict[str, Any]:
-    """Train, checkpointing to ``out_dir/checkpoint.msgpack``; returns a summary dict.
-
-    init: a :class:`~stereojax.matching_cost.learned.LearnedModel` (same network) to start from instead
-    of random weights (fine-tuning; the optimiser and the schedule start afresh). A resumed run
-    continues from its checkpoint and ignores ``init``.
-
-    resume: continue from the checkpoint in ``out_dir`` (it must have been made with the same
-    config). stop_after: return after this many steps of this call (for tests). devices: data
-    parallelism over this many devices (None: all; see :func:`train_step`); only process 0
-    of a multi-process run writes checkpoints, logs and TensorBoard. teacher: the
-    :class:`~stereojax.matching_cost.learned.LearnedModel` whose scores ``cfg.distill`` distils.
-    dense: the :class:`~stereojax.learning.dense_distill.DenseTargets` that ``cfg.dense`` distils.
-    """
-
-    cfg.validate()
-    if (cfg.distill > 0) != (teacher is not None):
-        raise ConfigError("a teacher network is needed exactly when distill > 0 "
-                          f"(distill {cfg.distill}, teacher {'given' if teacher else 'none'})")
-    if (cfg.dense > 0) != (dense is not None):
-        raise ConfigError("dense distillation targets are needed exactly when dense > 0 "
-                          f"(dense {cfg.dense}, targets {'given' if dense is not None else 'none'})")
-    mesh = make_mesh(devices)
-    _check_batch(cfg, mesh)
-    main_process = jax.process_index() == 0
-    out = Path(out_dir)
-    ckpt = out / "checkpoint.msgpack"
-    data = build_patch_data(train_samples, cfg.net.patch_size, cfg.sampler)
-    val = build_patch_data(val_samples, cfg.net.patch_size, cfg.sampler) if val_samples else None
+def _start_state(cfg: TrainConfig, ckpt: Path, resume: bool, init) -> dict:
+    """The state training starts from: fresh (from ``init``'s weights when given), or the
+    checkpoint's when resuming, which must have been made with the same config (fields of
+    :data:`_FREE_ON_RESUME` may differ)."""
     state = init_state(cfg)
     if init is not None and not (resume and ckpt.exists()):
         if init.net != cfg.net:
@@ -360,6 +333,73 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
             raise ConfigError(f"cannot resume {ckpt}: it was made with another training config ({shown}"
                               f"{', ...' if len(differ) > 3 else ''}); use another --out or the same settings")
         state, _ = checkpoint.load(ckpt, state, expect_net=wanted["net"])
+    return state
+
+
+def _check_fit_inputs(cfg: TrainConfig, teacher, dense) -> None:
+    """The config is valid, and a teacher / dense targets are given exactly when it distils."""
+    cfg.validate()
+    if (cfg.distill > 0) != (teacher is not None):
+        raise ConfigError("a teacher network is needed exactly when distill > 0 "
+                          f"(distill {cfg.distill}, teacher {'given' if teacher else 'none'})")
+    if (cfg.dense > 0) != (dense is not None):
+        raise ConfigError("dense distillation targets are needed exactly when dense > 0 "
+                          f"(dense {cfg.dense}, targets {'given' if dense is not None else 'none'})")
+
+
+def _teacher_args(teacher, dense, mesh) -> dict:
+    """The distillation inputs of :func:`_steps`: the teacher's variables (on every device of
+    ``mesh``) and network, and the dense targets."""
+    args = {}
+    if teacher is not None:
+        variables = teacher.variables
+        if mesh is not None:
+            variables = jax.device_put(variables, NamedSharding(mesh, PartitionSpec()))
+        args = {"teacher": variables, "teacher_net": teacher.net}
+    if dense is not None:
+        args["dense"] = dense
+    return args
+
+
+def _keep_on_stop(stop: Interrupted, state, cfg: TrainConfig, info, ckpt: Path, start: int,
+                  last_good: int, main_process: bool) -> None:
+    """A signal stopped training: checkpoint the last completed step (if not yet written) and
+    tell ``stop`` what was kept and how to continue."""
+    done = int(state["step"])
+    if main_process and done > last_good:
+        checkpoint.save(ckpt, state, _state_config(cfg, info))
+    kept = (f"the checkpoint of step {done} is kept in {ckpt}" if done > start or ckpt.exists()
+            else "no step was completed, nothing kept")
+    stop.summary = {"steps": done, "of": cfg.steps, "checkpoint": str(ckpt) if ckpt.exists() else None}
+    stop.note = f"stopped at step {done} of {cfg.steps}; {kept}; run the same command with --resume to continue"
+
+
+def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None, out_dir,
+        resume: bool = False, progress: bool = True, stop_after: int | None = None,
+        info: dict | None = None, devices: int | None = 1, init=None, teacher=None, dense=None) -> dict[str, Any]:
+    """Train, checkpointing to ``out_dir/checkpoint.msgpack``; returns a summary dict.
+
+    init: a :class:`~stereojax.matching_cost.learned.LearnedModel` (same network) to start from instead
+    of random weights (fine-tuning; the optimiser and the schedule start afresh). A resumed run
+    continues from its checkpoint and ignores ``init``.
+
+    resume: continue from the checkpoint in ``out_dir`` (it must have been made with the same
+    config). stop_after: return after this many steps of this call (for tests). devices: data
+    parallelism over this many devices (None: all; see :func:`train_step`); only process 0
+    of a multi-process run writes checkpoints, logs and TensorBoard. teacher: the
+    :class:`~stereojax.matching_cost.learned.LearnedModel` whose scores ``cfg.distill`` distils.
+    dense: the :class:`~stereojax.learning.dense_distill.DenseTargets` that ``cfg.dense`` distils.
+    """
+
+    _check_fit_inputs(cfg, teacher, dense)
+    mesh = make_mesh(devices)
+    _check_batch(cfg, mesh)
+    main_process = jax.process_index() == 0
+    out = Path(out_dir)
+    ckpt = out / "checkpoint.msgpack"
+    data = build_patch_data(train_samples, cfg.net.patch_size, cfg.sampler)
+    val = build_patch_data(val_samples, cfg.net.patch_size, cfg.sampler) if val_samples else None
+    state = _start_state(cfg, ckpt, resume, init)
     if mesh is not None:   # parameters, optimiser state and the patch data on every device
         every = NamedSharding(mesh, PartitionSpec())
         state, data = jax.device_put(state, every), jax.device_put(data, every)
@@ -372,12 +412,7 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
                disable=not progress, dynamic_ncols=True)
     history, t0, last_val = [], time.perf_counter(), None
     samples_per_step = (4 if cfg.distill else 3) * cfg.batch + (cfg.dense_batch if cfg.dense else 0)
-    teacher_args = {} if teacher is None else {"teacher": teacher.variables, "teacher_net": teacher.net}
-    if teacher is not None and mesh is not None:
-        teacher_args = {"teacher": jax.device_put(teacher.variables, NamedSharding(mesh, PartitionSpec())),
-                        "teacher_net": teacher.net}
-    if dense is not None:
-        teacher_args["dense"] = dense
+    teacher_args = _teacher_args(teacher, dense, mesh)
     last_good = start
     latest = {"state": state}        # the last completed step's state, kept if a signal stops the loop
     try:
@@ -386,16 +421,9 @@ def fit(cfg: TrainConfig, train_samples: Sequence, val_samples: Sequence | None,
                 bar, latest, data, val, val_samples, cfg, mesh, teacher_args, writer, ckpt, info, main_process,
                 start, end, t0, samples_per_step, history, last_val, last_good)
     except Interrupted as stop:
-        state = latest["state"]
-        done = int(state["step"])
         bar.close()
         writer.close()
-        if main_process and done > last_good:
-            checkpoint.save(ckpt, state, _state_config(cfg, info))
-        kept = (f"the checkpoint of step {done} is kept in {ckpt}" if done > start or ckpt.exists()
-                else "no step was completed, nothing kept")
-        stop.summary = {"steps": done, "of": cfg.steps, "checkpoint": str(ckpt) if ckpt.exists() else None}
-        stop.note = f"stopped at step {done} of {cfg.steps}; {kept}; run the same command with --resume to continue"
+        _keep_on_stop(stop, latest["state"], cfg, info, ckpt, start, last_good, main_process)
         raise
     writer.close()
     elapsed = time.perf_counter() - t0

@@ -49,7 +49,7 @@ def _propagate_diagonal(values, valid, dy: int, dx: int):
     return last, have
 
 
-#: Batcher's odd-even merge sort of 8 values: 19 compare-exchanges (tests/test_kernels.py checks
+#: Batcher's odd-even merge sort of 8 values: 19 compare-exchanges (tests/validation/test_filling.py checks
 #: it on every 0/1 input, which proves it sorts everything)
 SORT8 = ((0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (1, 2), (5, 6),
          (0, 4), (1, 5), (2, 6), (3, 7), (2, 4), (3, 5), (1, 2), (3, 4), (5, 6))

@@ -1,0 +1,146 @@
+"""stereojax.app.outputs: the pictures a person looks at (colour depth, its reliability mask, the error
+map's legend), the output folder's bookkeeping, and one writer per output folder."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from stereojax.app.outputs import (RELIABLE_MIN_CONFIDENCE, RELIABLE_MIN_DISP, depth_color, depth_reliable,
+                                   write_prediction)
+from stereojax.data import io
+from stereojax.data.calibration import Calibration
+
+from ..helpers import cache_env as _env, pair_folders as _folders
+
+FAST = ["--max-disp", "16", "--method", "census"]
+
+
+def test_depth_is_reliable_only_at_large_confident_disparities():
+    disp = np.array([[np.inf, 2.0, RELIABLE_MIN_DISP - 0.01, RELIABLE_MIN_DISP, 40.0]], np.float32)
+    assert depth_reliable(disp).tolist() == [[False, False, False, True, True]]
+    conf = np.array([[1, 1, 1, 1, RELIABLE_MIN_CONFIDENCE - 0.01]], np.float32)
+    assert depth_reliable(disp, conf).tolist() == [[False, False, False, True, False]]
+
+
+def test_depth_colour_runs_near_red_to_far_blue_and_greys_the_unreliable():
+    z = np.tile(np.linspace(2.0, 20.0, 100, dtype=np.float32), (4, 1))
+    z[:, :3] = 0.0                                              # no depth
+    reliable = np.ones_like(z, bool)
+    reliable[0] = False                                         # a row we do not trust
+    rgb, scale = depth_color(z, reliable)
+    assert rgb.shape == z.shape + (3,) and rgb.dtype == np.uint8
+    near, far = rgb[1, 3], rgb[1, -1]
+    assert near[0] > near[2] and far[2] > far[0]                # red near, blue far
+    assert (rgb[:, :3] == 0).all()                              # no depth: black
+    assert (rgb[0, 3:, 0] == rgb[0, 3:, 1]).all() and (rgb[0, 3:, 1] == rgb[0, 3:, 2]).all()   # grey
+    assert rgb[0, 3:].max() < 128                               # at half brightness
+    assert 2.0 <= scale["near"] < scale["far"] <= 20.0 and scale["unit"] == "m"
+    assert scale["reliable_to_m"] == 20.0 and 70 < scale["reliable_share_pct"] < 80
+
+
+def test_write_prediction_writes_the_colour_depth_its_scale_and_mask(tmp_path):
+    disp = np.full((20, 30), 25.0, np.float32)
+    disp[:, :10] = 3.0                                           # far: 1 px moves its depth by a third
+    conf = np.ones_like(disp)
+    conf[15:] = 0.1
+    names = write_prediction(tmp_path, "", disp, Calibration(0.5, 100.0), ply=False, confidence=conf)
+    assert {"depth_color.png", "depth_color.json", "depth_reliable.png"} <= set(names)
+    mask = io.read_image(tmp_path / "depth_reliable.png") > 0
+    assert mask[:15, 10:].all() and not mask[:, :10].any() and not mask[15:].any()
+    scale = json.loads((tmp_path / "depth_color.json").read_text())
+    assert scale["reliable_to_m"] == 2.0                         # 0.5 m x 100 px / 25 px
+    assert io.read_image(tmp_path / "depth_color.png").shape == (20, 30, 3)
+
+
+def test_the_error_legend_shows_every_band_of_the_error_map():
+    legend = io.error_legend()
+    assert legend.ndim == 3 and legend.shape[1] >= 300
+    colours = {tuple(c) for c in legend.reshape(-1, 3)}
+    for _, _, colour in io.KITTI_ERROR_COLORS:
+        assert tuple(colour) in colours
+
+
+def test_a_second_batch_on_a_held_folder_is_refused(tmp_path):
+    left_dir, right_dir = _folders(tmp_path, ["a"])
+    out = tmp_path / "o"
+    out.mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path;"
+                               "from stereojax.app.outputs import folder_lock\n"
+                               f"with folder_lock(Path({str(out)!r})):\n    print('held', flush=True); time.sleep(60)"],
+                              env=_env(tmp_path / "c"), stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        r = subprocess.run([sys.executable, "-m", "stereojax.app.cli", "predict", str(left_dir), str(right_dir),
+                            "--out", str(out), *FAST], env=_env(tmp_path / "c"), capture_output=True, text=True,
+                           timeout=300)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert r.returncode == 8, r.stderr
+    assert r.stderr.strip().splitlines()[-1] == (f"stereojax predict: error: output folder {out} is in use by PID "
+                                                 f"{holder.pid} (another stereojax predict); wait for it to finish "
+                                                 "or choose another --out")
+    assert not (out / "a").exists()
+    assert r.stdout == "", r.stdout               # refused before it says what it would run
+
+
+def test_the_lock_is_reentrant_and_its_file_goes_when_the_run_ends(tmp_path):
+    from stereojax.app.outputs import LOCK_NAME, folder_lock
+    from stereojax.errors import OutputBusyError
+
+    with folder_lock(tmp_path) as path:
+        with folder_lock(tmp_path):                   # the CLI's block, then the batch's
+            assert path.read_text().strip() == str(os.getpid())
+        assert path.exists()                          # the outer block still holds it
+        other = subprocess.run([sys.executable, "-c", "from pathlib import Path; from stereojax.app.outputs import "
+                                f"folder_lock\nwith folder_lock(Path({str(tmp_path)!r})): pass"],
+                               capture_output=True, text=True)
+        assert other.returncode != 0 and OutputBusyError.__name__ in other.stderr
+    assert not (tmp_path / LOCK_NAME).exists()
+    with pytest.raises(RuntimeError):                 # a failed block removes it too
+        with folder_lock(tmp_path):
+            raise RuntimeError
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / LOCK_NAME).write_text("12345\n")    # a killed run's file: taken over
+    with folder_lock(tmp_path) as path:
+        assert path.read_text().strip() == str(os.getpid())
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_single_pair_leaves_no_empty_output_folder(tmp_path, capsys):
+    from stereojax.app.cli import main
+
+    left, right = _folders(tmp_path, ["a"])
+    out = tmp_path / "new" / "o"
+    code = main(["predict", str(left / "a.png"), str(tmp_path / "missing.png"), "--out", str(out), *FAST])
+    assert code == 2 and "missing.png" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "new").exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()                                      # a folder the user made stays
+    assert main(["predict", str(left / "a.png"), str(tmp_path / "missing.png"), "--out", str(kept), *FAST]) == 2
+    assert kept.is_dir()
+
+
+@pytest.mark.slow
+def test_two_identical_batches_started_together(tmp_path):
+    """Two processes on one --out: one computes, the other refuses (exit 8) or, if it starts
+    after the first finished, finds every frame complete; no frame fails or is lost."""
+    left_dir, right_dir = _folders(tmp_path, ["a", "b", "c"])
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "stereojax.app.cli", "predict", str(left_dir), str(right_dir), "--out", str(out), *FAST]
+    procs = [subprocess.Popen(cmd, env=_env(tmp_path / "c"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for _ in range(2)]
+    results = [(p.wait(timeout=600), p.stderr.read()) for p in procs]
+    codes = sorted(c for c, _ in results)
+    assert codes in ([0, 0], [0, 8]), results
+    if codes == [0, 8]:
+        assert any("is in use by PID" in e for c, e in results if c == 8)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["failed"] == [] and summary["ok"] == 3
+    assert sorted(p.name for p in out.iterdir() if p.name.startswith(".") and p.name != ".stereojax.lock") == []
+    for n in "abc":
+        assert (out / n / "frame.json").is_file()
