@@ -44,4 +44,8 @@ def test_disparities_match_the_golden_ones(data_root, method):
         disp = np.asarray(stereojax.disparity(*_crop(data_root, frame), config=config, params=model))
         want = golden[f"{method}_{frame}"]
         assert disp.shape == want.shape
-        np.testing.assert_allclose(disp, want, rtol=0, atol=1e-6, err_msg=f"{method} on {frame}")
+        # to 1e-6 of each value: a fresh compile (a clean clone, the suite's XLA flags) rounds the
+        # learned chains' float sums differently from the compile that wrote the golden file
+        # (seen: 7 % of the pixels off by up to 8e-7 of their value, 1.5e-5 px); a changed
+        # result moves pixels by far more
+        np.testing.assert_allclose(disp, want, rtol=1e-6, atol=1e-6, err_msg=f"{method} on {frame}")
