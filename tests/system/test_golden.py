@@ -44,8 +44,11 @@ def test_disparities_match_the_golden_ones(data_root, method):
         disp = np.asarray(stereojax.disparity(*_crop(data_root, frame), config=config, params=model))
         want = golden[f"{method}_{frame}"]
         assert disp.shape == want.shape
-        # to 1e-6 of each value: a fresh compile (a clean clone, the suite's XLA flags) rounds the
-        # learned chains' float sums differently from the compile that wrote the golden file
-        # (seen: 7 % of the pixels off by up to 8e-7 of their value, 1.5e-5 px); a changed
-        # result moves pixels by far more
-        np.testing.assert_allclose(disp, want, rtol=1e-6, atol=1e-6, err_msg=f"{method} on {frame}")
+        # A fresh compile (a clean clone, the suite's XLA flags, another cache state) rounds the
+        # learned chains' float sums differently from the compile that wrote the golden file:
+        # seen, 7 % of the pixels off by up to 8e-7 of their value, and in another run 5 of 20 480
+        # pixels flipped by 0.5 px (a near-tie of two costs). So: every pixel to 1e-6 of its value
+        # but at most 0.1 % of them (20 of a 64 x 320 crop); a changed chain moves far more.
+        off = ~np.isclose(disp, want, rtol=1e-6, atol=1e-6)
+        assert off.mean() <= 1e-3, (f"{method} on {frame}: {off.sum()} pixels differ, by up to "
+                                    f"{np.abs(disp - want).max():.3g} px")
