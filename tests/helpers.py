@@ -122,3 +122,9 @@ def run_cli(argv, capsys):
         code = exc.code
     cap = capsys.readouterr()
     return code, cap.out, cap.err
+
+
+def random_pair(shape=(9, 14), seed: int = 0):
+    """A small pair of random grey images (float32, 0..255): the kernels' reference tests."""
+    rng = np.random.default_rng(seed)
+    return (rng.integers(0, 256, shape).astype(np.float32), rng.integers(0, 256, shape).astype(np.float32))

@@ -10,14 +10,12 @@ from stereojax.matching_cost import classical as cost, classical as cost_mod
 
 from .. import reference as ref
 from ..band_reference import D, _band, _case
+from ..helpers import random_pair
 
 
 @pytest.fixture
 def pair():
-    rng = np.random.default_rng(0)
-    left = rng.integers(0, 256, (9, 14)).astype(np.float32)
-    right = rng.integers(0, 256, (9, 14)).astype(np.float32)
-    return left, right
+    return random_pair()
 
 
 @pytest.mark.parametrize("border", ["worst", "replicate"])

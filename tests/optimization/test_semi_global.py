@@ -10,14 +10,12 @@ from stereojax.volume import CostVolume
 
 from .. import reference as ref
 from ..band_reference import D, _band, _case, ref_sgm_band
+from ..helpers import random_pair
 
 
 @pytest.fixture
 def pair():
-    rng = np.random.default_rng(0)
-    left = rng.integers(0, 256, (9, 14)).astype(np.float32)
-    right = rng.integers(0, 256, (9, 14)).astype(np.float32)
-    return left, right
+    return random_pair()
 
 
 @pytest.mark.parametrize("directions", [4, 8])
