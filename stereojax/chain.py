@@ -39,7 +39,7 @@ from stereojax.config import CostConfig, StereoConfig
 from stereojax.disparity import right_view, winner_takes_all
 from stereojax.errors import ConfigError
 from stereojax.filters import bilateral, median
-from stereojax.matching_cost import classical as cost_mod, coarse
+from stereojax.matching_cost import cascade as cascade_mod, classical as cost_mod, coarse
 from stereojax.matching_cost.learned import LearnedModel, candidate_config, learned_volume, rank, tower_features
 from stereojax.models.nets import NetConfig
 from stereojax.optimization.semi_global import sgm, sgm_volume
@@ -425,6 +425,34 @@ def second_program(carry: State, config, variables=None, confidence: bool = Fals
     on :func:`first_program`'s state; the disparity (and confidence)."""
     st = run(STAGES[split(config, carry.net):], carry.replace(variables=variables), config)
     return result(st, confidence)
+
+
+# ---- the cascade: the student everywhere, the full network where the student is unsure ------
+
+#: the stages the cascade's student runs after its matching cost: up to its confidence map
+CASCADE_STUDENT = tuple(s.name for s in STAGES[_index("matching cost") + 1:_index("confidence") + 1])
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def cascade_student(carry: State, config, variables=None):
+    """The cascade's second program (after :func:`first_program` of the student): the student's
+    matching cost, and its chain up to the confidence; (the student's volume, its confidence)."""
+    st = run(FRONT[split(config, carry.net):], carry.replace(variables=variables), config)
+    vol = st.vol
+    return vol, run(CASCADE_STUDENT, st, config).confidence
+
+
+@functools.partial(jax.jit, static_argnames=("config", "cascade", "confidence"))
+def cascade_second(carry: State, vol: CostVolume, conf, config, cascade, full_variables, confidence: bool = False):
+    """The cascade's third program: the full network's cost at the ``cascade.share`` least
+    confident pixels replaces the student's there (:mod:`stereojax.matching_cost.cascade`), and
+    the chain after the matching cost (:data:`BACK`) runs once on the mixed volume."""
+    ys, xs, used = cascade_mod.unsure_pixels(conf, cascade.share, carry.valid)
+    cost, cand = cascade_mod.full_cost_rows(cascade.net, full_variables, carry.left, carry.right, carry.ranked,
+                                            ys, xs, cascade.candidates, carry.valid)
+    mixed = cascade_mod.mixed_volume(vol, ys, xs, used, cand, cost)
+    st = carry.replace(vol=mixed, features=None, ranked=None, variables=None)
+    return result(run(BACK, st, config), confidence)
 
 
 def result(st: State, confidence: bool):

@@ -21,6 +21,7 @@ from stereojax.config import StereoConfig, preset
 from stereojax.errors import ConfigError
 from stereojax.inference import reporting, tiling
 from stereojax.inference.compile_cache import bucket_shape, ensure_enabled
+from stereojax.matching_cost.cascade import Cascade
 from stereojax.inference.prepare import check_disp_range, check_pixel_range, prepare_pair, shift_right_image
 from stereojax.inference.programs import (CompiledChain, Volume, compiled_chain, default_device, disparity_from_volume,
                                           disparity_grey, is_kept, pad_to, stages_grey, variable_shapes,
@@ -44,11 +45,13 @@ class Predictor:
     ``confidence=True``: every call returns (disparity, confidence), the confidence a per-pixel
     value in [0, 1] from the cost margin and the left-right agreement
     (:func:`stereojax.validation.confidence_measure.confidence`). The model's variables are put on the device once,
-    here, and passed to every run.
+    here, and passed to every run. ``cascade``: a :class:`~stereojax.matching_cost.cascade.Cascade`,
+    the full network's cost where this (student) model is least sure
+    (:mod:`stereojax.matching_cost.cascade`).
     """
 
     def __init__(self, config: StereoConfig | None = None, model=None, device=None, memory_limit_gb=None,
-                 confidence: bool = False, tile: str = "off", disp_range=None):
+                 confidence: bool = False, tile: str = "off", disp_range=None, cascade: Cascade | None = None):
         self.disp_range = check_disp_range(disp_range)
         config = (config or preset("census")).validate()
         if self.disp_range is not None:      # MIN <= d < MAX: the chain runs over MAX - MIN disparities
@@ -62,6 +65,14 @@ class Predictor:
         ensure_enabled()          # the persistent compile cache, as the CLI has it
         device = default_device(device)
         self.model, self.device, self.memory_limit_gb = model, device, memory_limit_gb
+        self.cascade = None
+        if cascade is not None:
+            cascade = cascade.check()
+            if not chain_mod.two_programs(self.config, self.net):
+                raise ConfigError("the cascade's student must be a learned model with a pruned head "
+                                  "(cost.candidates > 0), e.g. kitti2015_compact")
+            self.cascade = cascade.spec()
+            variables = (variables, cascade.full.variables)
         if variables is not None:
             variables = jax.device_put(variables, device)
         self.variables = variables
@@ -87,7 +98,7 @@ class Predictor:
     def _key(self, height: int, width: int, limited: bool = False):
 
         return (bucket_shape(height, width), self.config, self.net, self.device, variable_shapes(self.variables),
-                self.confidence, bool(limited))
+                self.confidence, bool(limited), self.cascade)
 
     def is_compiled(self, height: int, width: int, limited: bool = False) -> bool:
         """Whether the chain for a ``height x width`` pair is compiled in this process already."""
@@ -96,8 +107,8 @@ class Predictor:
     def compiled(self, height: int, width: int, limited: bool = False) -> tuple[CompiledChain, bool]:
         """(the compiled chain for a ``height x width`` pair, whether it was compiled now);
         ``limited``: the chain that takes per-pixel limits."""
-        shape, config, net, device, _, confidence, limited = self._key(height, width, limited)
-        return compiled_chain(shape, config, net, self.variables, device, confidence, limited)
+        shape, config, net, device, _, confidence, limited, cascade = self._key(height, width, limited)
+        return compiled_chain(shape, config, net, self.variables, device, confidence, limited, cascade)
 
     def limits(self, pixel_range, shape) -> np.ndarray | None:
         """``i32[2, H, W]`` per-pixel limits in the chain's disparities from ``pixel_range`` (two
@@ -148,6 +159,8 @@ class Predictor:
         """The pair's matching cost with this predictor's cost settings, padded to its size
         bucket, for :meth:`from_volume` (e.g. to try many back-end settings on one volume)."""
 
+        if self.cascade is not None:
+            raise ConfigError("volume() keeps one network's cost; a cascade mixes two (use its student's Predictor)")
         gl, gr = self.prepare(left, right)
         shape = bucket_shape(*gl.shape)
         lp, rp, valid = pad_to(gl, shape), pad_to(gr, shape), np.array(gl.shape, np.int32)

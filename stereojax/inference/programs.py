@@ -120,27 +120,42 @@ class CompiledChain:
     """
 
     def __init__(self, shape: tuple[int, int], config: StereoConfig, net=None, variables=None, device=None,
-                 confidence: bool = False, limited: bool = False):
+                 confidence: bool = False, limited: bool = False, cascade=None):
         """variables: the variables (or arrays of their shapes) the chain will be called with.
         confidence: the chain returns (disparity, confidence). limited: every call gives
-        per-pixel disparity limits (:meth:`Predictor.__call__`'s ``pixel_range``)."""
+        per-pixel disparity limits (:meth:`Predictor.__call__`'s ``pixel_range``). cascade: a
+        :class:`~stereojax.matching_cost.cascade.CascadeSpec` (the full network where the
+        student, ``net``, is unsure); ``variables`` are then (the student's, the full network's)."""
         self.shape, self.config, self.net, self.device = shape, config, net, device
-        self.confidence, self.limited = confidence, limited
+        self.confidence, self.limited, self.cascade = confidence, limited, cascade
         sharding = None if device is None else SingleDeviceSharding(device)
-        var_spec = None if variables is None else jax.tree_util.tree_map(
-            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), variables)
+
+        def on_device(tree):
+            return jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding), tree)
+
+        var_spec = None if variables is None else on_device(variables)
+        full_spec = None
+        if cascade is not None:
+            var_spec, full_spec = var_spec
         spec = jax.ShapeDtypeStruct(shape, jnp.float32, sharding=sharding)
         valid = jax.ShapeDtypeStruct((2,), jnp.int32, sharding=sharding)
         lim = jax.ShapeDtypeStruct((2,) + tuple(shape), jnp.int32, sharding=sharding) if limited else None
         self._two = chain_mod.two_programs(config, net)
+        if cascade is not None and not self._two:
+            raise ValueError("the cascade needs a pruned learned student (cost.candidates > 0)")
         if self._two:          # the method's two programs, the second fed the first's outputs
             self._first = chain_mod.first_program.lower(spec, spec, valid, config, var_spec, net, lim).compile()
-            carry = jax.eval_shape(lambda a, b, v, w, m: chain_mod.first_program(a, b, v, config, w, net, m),
-                                   spec, spec, valid, var_spec, lim)
-            if sharding is not None:
-                carry = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding),
-                                               carry)
-            self._second = chain_mod.second_program.lower(carry, config, var_spec, confidence).compile()
+            carry = on_device(jax.eval_shape(
+                lambda a, b, v, w, m: chain_mod.first_program(a, b, v, config, w, net, m),
+                spec, spec, valid, var_spec, lim))
+            if cascade is None:
+                self._second = chain_mod.second_program.lower(carry, config, var_spec, confidence).compile()
+            else:              # the student up to its confidence, then the mixed volume's chain
+                self._student = chain_mod.cascade_student.lower(carry, config, var_spec).compile()
+                vol, conf = on_device(jax.eval_shape(lambda c, w: chain_mod.cascade_student(c, config, w),
+                                                     carry, var_spec))
+                self._second = chain_mod.cascade_second.lower(carry, vol, conf, config, cascade, full_spec,
+                                                              confidence).compile()
         else:
             self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net, confidence,
                                                     lim).compile()
@@ -163,7 +178,11 @@ class CompiledChain:
             lim[0], lim[1] = 0, self.config.max_disp
             lim[:, :h, :w] = limits
             lim = jax.device_put(lim, self.device)
-        if self._two:
+        if self.cascade is not None:
+            student, full = variables
+            carry = self._first(lp, rp, valid, student, lim)
+            out = self._second(carry, *self._student(carry, student), full)
+        elif self._two:
             out = self._second(self._first(lp, rp, valid, variables, lim), variables)
         else:
             out = self._compiled(lp, rp, valid, variables, lim)
@@ -203,15 +222,16 @@ def variable_shapes(variables):
 
 
 def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, variables=None,
-                   device=None, confidence: bool = False, limited: bool = False) -> tuple[CompiledChain, bool]:
+                   device=None, confidence: bool = False, limited: bool = False,
+                   cascade=None) -> tuple[CompiledChain, bool]:
     """(the :class:`CompiledChain` of a bucket shape, config, architecture and device, whether it
-    was compiled now); ``variables`` give the shapes only. Safe to call from the worker threads
+    was compiled now); ``variables`` give the shapes only; ``cascade``: see :class:`CompiledChain`. Safe to call from the worker threads
     of :func:`stereojax.devices.map_frames`. Most callers want :class:`Predictor`.
 
     ``device`` None means the default device, named: a program compiled for it is the one a
     batch compiles for its first device, so both find one persistent-cache entry."""
     device = default_device(device)
-    key = (tuple(shape), config, net, device, variable_shapes(variables), confidence, limited)
+    key = (tuple(shape), config, net, device, variable_shapes(variables), confidence, limited, cascade)
     with _COMPILED_LOCK:
         fresh = key not in _COMPILED
         if fresh:
@@ -225,7 +245,8 @@ def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, varia
                 # sizes would reach the kernel's vm.max_map_count (65 530) and crash inside XLA.
                 # The chains still kept are referenced here and stay compiled.
                 jax.clear_caches()
-            _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device, confidence, limited)
+            _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device, confidence, limited,
+                                           cascade)
         else:   # the most recently used last
             _COMPILED[key] = _COMPILED.pop(key)
         return _COMPILED[key], fresh
