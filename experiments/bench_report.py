@@ -14,7 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
-from stereojax.app.bench import LEARNED, NETWORK_STAGES
+from stereojax.app.bench import CASCADE, LEARNED, NETWORK_STAGES
 from stereojax.chain import STAGES
 from stereojax.data.io import atomic_output
 
@@ -133,6 +133,14 @@ def accuracy_records(out_dir: Path) -> dict:
     if fin:
         out["student"] = {"name": fin["point"], "val": fin["val"], "seconds": fin["seconds"], "limit": fin["best_limit"],
                           "becomes_best": fin["becomes_best"], "source": "dense_distill_final.md"}
+    curve = read("cascade_curve_validation.json")
+    if curve:
+        q = f"cascade {100 * CASCADE[2]:g} %"
+        rows = curve["frames"]
+        if rows and q in rows[0]["bad3"]:
+            out["cascade"] = {"val": sum(r["bad3"][q] for r in rows) / len(rows), "frames": len(rows),
+                              "full_val": sum(r["bad3"]["full"] for r in rows) / len(rows),
+                              "source": "cascade_curve.md"}
     if mid:
         out["middlebury_student"] = {"bad3": mid["mean"]["learned"]["bad3"], "limit": mid["student_bar"],
                                      "seconds": mid["seconds"]["learned"], "becomes_best": mid["becomes_best"],
@@ -219,6 +227,57 @@ def best_targets(r: dict) -> list[str]:
     return out
 
 
+#: the targets of issue 38 (the full network where it matters): the cascade's ratio to SGBM of the
+#: same run at validation <= 4.08 %, `best`'s share of Pandora's time, make demo's computation,
+#: peak RSS of a `best` predict process with the compiled chain read from the cache
+CASCADE_TARGETS = {"best_x_sgbm": 60.0, "stretch_x_sgbm": 30.0, "val": 4.08, "pandora_share": 1 / 3, "demo_s": 8.0,
+                   "peak_rss_gib": 1.5}
+
+
+def cascade_targets(r: dict) -> list[str]:
+    """The lines on issue 38's targets: the cascade of the bench (:data:`stereojax.app.bench.CASCADE`)
+    as `best` would run it, and `best` as it is."""
+    sg, t, out = r["sgbm_padded_s"], CASCADE_TARGETS, []
+    casc, prof = r["chains"].get("cascade", {}), r["profiles"].get("cascade")
+    acc = (r.get("accuracy") or {}).get("cascade")
+    best = r["chains"].get(r["best"], {})
+    if "warm_s" in casc and prof:
+        st = {k: v["warm_s"] for k, v in prof["stages"].items()}
+        names = list(st)
+        where = (f"{casc['warm_s']:.2f} s: the student to its confidence {st[names[0]] + st[names[1]]:.2f} s, "
+                 f"then the full network and the chain again {st[names[2]]:.2f} s (its tower alone "
+                 f"{st[names[3]]:.2f} s)")
+        val = f"; validation > 3 px {acc['val']:.2f} % ({acc['source']})" if acc else ""
+        _target_line(out, f"the cascade at q = {100 * casc['share']:g} % (`{casc['student']}` + `{casc['full']}`), "
+                     "× SGBM", casc["warm_s"] / sg, t["best_x_sgbm"], "×", where + val + ".")
+        if acc:
+            ok = acc["val"] <= t["val"]
+            out.append(f"* its validation > 3 px ≤ {t['val']:g} %: {acc['val']:.2f} % — "
+                       + ("met." if ok else f"**not met**, {acc['val'] - t['val']:.2f} points over."))
+        if "warm_s" in best:
+            out.append(f"* the rule's time (≤ a third of the full network, same run): {casc['warm_s']:.2f} s against "
+                       f"{best['warm_s'] / 3:.2f} s — " + ("met." if casc["warm_s"] <= best["warm_s"] / 3 else
+                                                          f"**not met**, {casc['warm_s'] - best['warm_s'] / 3:.2f} s over "
+                                                          f"(`best` runs `{r['best']}`)."))
+    if "warm_s" in best:
+        _target_line(out, f"`best` (= `{r['best']}`), × SGBM", best["warm_s"] / sg, t["best_x_sgbm"], "×",
+                     f"`best` runs `{r['best']}` (the rule: experiments/results/cascade_curve.md).")
+    a = r.get("anchors")
+    if a and a.get("pandora_s"):
+        _target_line(out, "`best` / Pandora's time (make bench-anchors, its own run)", a["best_s"] / a["pandora_s"],
+                     t["pandora_share"], "×", f"`best` {a['best_s']:.1f} s, Pandora {a['pandora_s']:.1f} s.")
+    demo = r.get("demo") or {}
+    if "warm_s" in demo:
+        _target_line(out, "`make demo`'s computation after compiling (fresh process)", demo["warm_s"], t["demo_s"],
+                     " s", f"{demo['model']}: no Middlebury student is shipped, so the demo has no cascade.")
+    p = r["processes"].get("best")
+    if p:
+        _target_line(out, "peak RSS of a `best` predict process, compiled chain from the cache",
+                     p["cache_hit"]["peak_rss_gib"], t["peak_rss_gib"], " GiB",
+                     "The full network's chain; the rest is XLA's buffers and the interpreter.")
+    return out
+
+
 def band_targets(r: dict) -> list[str]:
     """The lines on issue 25's targets (ratios to SGBM of this run; peak RSS of predict processes)."""
     sg, chains, t = r["sgbm_padded_s"], r["chains"], BAND_TARGETS
@@ -284,6 +343,11 @@ def format_bench(r: dict) -> str:
     ex = full["exact"]
     lines.append(f"| stereojax `kitti2015`, exact head (extrapolated from 8 disparities) | "
                  f"{_arch(full['net'])} | {r['max_disp']} | {ex['chain_s']:.0f} | {ratio(ex['chain_s'])} | |")
+    casc = chains.get("cascade", {})
+    if "warm_s" in casc:
+        lines.append(f"| stereojax cascade: `{casc['student']}` everywhere, `{casc['full']}` at the "
+                     f"{100 * casc['share']:g} % least confident pixels | both | 16 + {100 * casc['share']:g} % × 16 | "
+                     f"{casc['warm_s']:.2f} | {ratio(casc['warm_s'])} | (not `best`: cascade_curve.md) |")
     census = chains["census"]
     if "warm_s" in census:
         lines.append(f"| stereojax census chain | | | {census['warm_s']:.2f} | {ratio(census['warm_s'])} | "
@@ -302,6 +366,12 @@ def format_bench(r: dict) -> str:
         lines += chain_targets(r)
         lines += ["", "## Cost entries per second of the band kernels, against OpenCV's", ""]
         lines += rate_table(r)
+    if "cascade" in chains and "cascade" in profiles:
+        lines += ["", "## The targets of issue 38 (the full network where it matters), met or missed, and why", ""]
+        lines += cascade_targets(r)
+        lines += ["", f"Where the cascade's time goes (q = {100 * profiles['cascade']['share']:g} %, each program "
+                  "timed alone, warm):", "", "| program | warm s |", "|---|---|"]
+        lines += [f"| {k} | {v['warm_s']:.2f} |" for k, v in profiles["cascade"]["stages"].items()]
     lines += ["", "## The targets of issue 25 (bands), met or missed, and why", ""]
     lines += band_targets(r)
     lines += ["", "## The targets of issue 26 (`best` in two seconds), met or missed, and why", ""]

@@ -13,10 +13,11 @@ from stereojax.config import (AggregationConfig, CostConfig, RefineConfig, SGMCo
 from stereojax.errors import (CheckpointError, ConfigError, InputWarning, MemoryBudgetError,
                               OutputError, StereoError, StereoInputError)
 from stereojax.inference.predictor import Predictor, disparity, stages
+from stereojax.matching_cost.cascade import Cascade
 from stereojax.models.registry import load_model
 
 __all__ = [
-    "Predictor", "disparity", "stages", "preset", "load_model",
+    "Predictor", "disparity", "stages", "preset", "load_model", "Cascade",
     "StereoConfig", "CostConfig", "AggregationConfig", "SGMConfig", "RefineConfig",
     "StereoError", "StereoInputError", "ConfigError", "CheckpointError", "OutputError",
     "MemoryBudgetError", "InputWarning",

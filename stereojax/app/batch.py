@@ -36,6 +36,7 @@ from stereojax.data.disp_range import AutoRange, auto_disp_range
 from stereojax.data.rectification import check_rectified
 from stereojax.devices import current_device, map_frames
 from stereojax.errors import InputWarning, StereoError, StereoInputError
+from stereojax.inference.compile_cache import bucket_shape
 from stereojax.inference.memory import current_rss_bytes, peak_rss_bytes
 from stereojax.inference.predictor import Predictor
 from stereojax.inference.prepare import check_size
@@ -109,7 +110,7 @@ def frame_problem(target: Path, record: dict, verify: bool = False) -> str | Non
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
                  phases=None, record: bool = False, min_confidence: float = 0.0,
                  check_rectified: str = "warn", tile: str = "auto", disp_range=None,
-                 max_depth: float | None = None) -> dict:
+                 max_depth: float | None = None, sequence=None) -> dict:
     """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``,
     with its confidence map (``confidence.png``, ``confidence.npy``); pixels whose confidence
     is below ``min_confidence`` have no disparity and no depth (0 in the PNGs).
@@ -136,11 +137,11 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
 
     with recording() as warned:
         return _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
-                             check_rectified, tile, disp_range, max_depth, warned)
+                             check_rectified, tile, disp_range, max_depth, warned, sequence)
 
 
 def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
-                  check_rectified, tile, disp_range, max_depth, warned) -> dict:
+                  check_rectified, tile, disp_range, max_depth, warned, sequence=None) -> dict:
 
     sample = load_pair(left_path, right_path)
     if disp_range != "auto":     # an unusable pair is refused in one line before anything else runs
@@ -157,9 +158,13 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
         print(f"disparity range auto: {found.describe()}", file=sys.stderr)
     run = resolve(sample.left.shape[1], sample.left.shape[0])
     cfg = run.config
-    predictor = Predictor(cfg, run.model(), current_device(), confidence=True, tile=tile, disp_range=used)
-    cfg = predictor.config
-    (disp, conf), timings = predictor.timed(sample.left, sample.right, phases)
+    if sequence is not None:        # a stream: the previous frame's disparity is this one's prior
+        (disp, conf), timings = _sequence_frame(sequence, run, sample)
+    else:
+        predictor = Predictor(cfg, run.model(), current_device(), confidence=True, tile=tile, disp_range=used,
+                              cascade=run.cascade_arg())
+        cfg = predictor.config
+        (disp, conf), timings = predictor.timed(sample.left, sample.right, phases)
     if used is not None:
         timings = {**timings, "disp_range": list(used)}
     lo, hi = used if used is not None else (0, cfg.max_disp)
@@ -186,6 +191,18 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
                                        "warnings": list(warned)})
     return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run,
             "warnings": list(warned)}
+
+
+def _sequence_frame(holder, run, sample):
+    """((disparity, confidence), timings) of one frame of a stream
+    (:class:`stereojax.app.sequence_run.SequenceHolder`); ``timings["sequence"]``: its record."""
+    frame, compile_s = holder.push(run, sample)
+    record = dict(frame.record)
+    seconds = record.pop("seconds")
+    h, w = frame.disparity.shape
+    return (frame.disparity, frame.confidence), {"seconds": seconds, "compile_s": compile_s,
+                                                 "bucket": list(bucket_shape(h, w)), "device": str(current_device()),
+                                                 "sequence": record}
 
 
 def _check_rectified(sample, mode: str, need: bool = False, min_disp: int = 0):
@@ -446,7 +463,8 @@ def predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, device
                     rows.append({"frame": name, "seconds": timings["seconds"], "compile_s": timings["compile_s"],
                                  "device": timings["device"], "bucket": timings["bucket"],
                                  "width": int(result["shape"][1]), "height": int(result["shape"][0]),
-                                 "rss_mb": result["rss_mb"], "warnings": result["warnings"]})
+                                 "rss_mb": result["rss_mb"], "warnings": result["warnings"],
+                                 **({"sequence": timings["sequence"]} if "sequence" in timings else {})})
                     bar.set_postfix(bucket=f"{timings['bucket'][1]}x{timings['bucket'][0]}")
         except Interrupted as stop:
             interrupted = stop

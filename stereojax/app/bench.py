@@ -35,6 +35,8 @@ from stereojax.data.io import write_json
 from stereojax.inference.prepare import prepare_pair
 from stereojax.inference.memory import peak_rss_bytes
 from stereojax.inference.predictor import Predictor
+from stereojax.inference.programs import pad_to
+from stereojax.matching_cost.cascade import Cascade
 from stereojax.matching_cost import learned as lc
 from stereojax.models.nets import network_flops
 from stereojax.models.registry import (learned_config, load_model, resolve, shipped_name,
@@ -153,12 +155,13 @@ def chain_child(max_disp: int, method: str, repeats: int = 3, data=None) -> dict
             "peak_rss_gib": peak_rss_gib(), "backend": jax.default_backend(), "source": src}
 
 
-def warm_chain(left, right, cfg, model=None, repeats: int = 3, confidence: bool = False) -> dict:
+def warm_chain(left, right, cfg, model=None, repeats: int = 3, confidence: bool = False, cascade=None) -> dict:
     """The whole chain of ``cfg`` (and ``model``) on one pair, compiled for its size bucket:
     ``{"warm_s": median of repeats after one warm-up run, "compile_s", "disparity"}``
-    (``confidence``: the chain also computes the confidence map, as ``make demo`` does)."""
+    (``confidence``: the chain also computes the confidence map, as ``make demo`` does;
+    ``cascade``: a :class:`~stereojax.matching_cost.cascade.Cascade` with ``model`` its student)."""
 
-    predictor = Predictor(cfg, model, confidence=confidence)
+    predictor = Predictor(cfg, model, confidence=confidence, cascade=cascade)
     gl, gr = predictor.prepare(left, right)
     t0 = time.perf_counter()
     predictor.compiled(*gl.shape)
@@ -204,8 +207,9 @@ def _child(code: str, env=None) -> tuple[dict | None, float, str]:
 
 def chain_memory(max_disp: int, method: str, data=None) -> dict:
     """Warm time, compile time and peak RSS of the whole chain in a fresh child process."""
-    code = ("import json;from stereojax.app.bench import chain_child;"
-            f"print(json.dumps(chain_child({max_disp}, {method!r}, data={data!r})))")
+    child = f"cascade_child({max_disp}, data={data!r})" if method == "cascade" else \
+        f"chain_child({max_disp}, {method!r}, data={data!r})"
+    code = f"import json;from stereojax.app.bench import chain_child, cascade_child;print(json.dumps({child}))"
     res, _, err = _child(code, {**os.environ, "STEREOJAX_CACHE_DIR": "off"})
     return res if res is not None else {"error": err or "child failed"}
 
@@ -307,6 +311,51 @@ def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: i
             "head_tflop": (network_flops(net, h, w, evals) - network_flops(net, h, w, 0)) / 1e12}
 
 
+#: the cascade of the bench (issue 38; experiments/results/cascade_curve.md): (student, full
+#: network, share q of pixels re-scored)
+CASCADE = ("kitti2015_compact", "kitti2015", 0.2)
+
+
+def _cascade_setup(max_disp: int, share: float):
+    student, cfg, _ = learned_setup(CASCADE[0], max_disp)
+    return student, cfg, Cascade(load_model(shipped_weights(CASCADE[1])), share)
+
+
+def cascade_child(max_disp: int, share: float = CASCADE[2], repeats: int = 3, data=None) -> dict:
+    """The cascade's whole chain on the bench pair in this (fresh) process: warm time, compile
+    time and peak RSS (as :func:`chain_child`)."""
+    student, cfg, cascade = _cascade_setup(max_disp, share)
+    left, right, src = _bench_pair(data=data)
+    t = warm_chain(left, right, cfg, student, repeats, cascade=cascade)
+    return {"warm_s": t["warm_s"], "compile_s": t["compile_s"], "peak_rss_gib": peak_rss_gib(),
+            "backend": jax.default_backend(), "source": src, "share": share,
+            "student": CASCADE[0], "full": CASCADE[1]}
+
+
+def cascade_profile(left, right, max_disp: int, share: float = CASCADE[2], repeats: int = 2) -> dict:
+    """Where the cascade's time goes: its three compiled programs timed one at a time (the
+    student's bands, tower and candidates; the student's head and chain up to its confidence;
+    the full network at the unsure pixels and the chain on the mixed volume), and the full
+    network's tower alone (inside the third)."""
+    student, cfg, cascade = _cascade_setup(max_disp, share)
+    predictor = Predictor(cfg, student, cascade=cascade)
+    gl, gr = predictor.prepare(left, right)
+    chain_, _ = predictor.compiled(*gl.shape)
+    lp, rp = pad_to(gl, chain_.shape), pad_to(gr, chain_.shape)
+    valid = jnp.array(gl.shape, jnp.int32)
+    sv, fv = predictor.variables
+    carry, first = _time(chain_._first, lp, rp, valid, sv, None, repeats=repeats)
+    (vol, conf), mid = _time(chain_._student, carry, sv, repeats=repeats)
+    _, last = _time(chain_._second, carry, vol, conf, fv, repeats=repeats)
+    full = cascade.full
+    _, tower = _time(jax.jit(lambda a, b: lc.tower_features(full.net, fv, a, b, valid)), lp, rp, repeats=repeats)
+    return {"share": share, "student": CASCADE[0], "full": CASCADE[1], "stages": {
+        "student: bands, tower, candidate chain": first,
+        "student: head, chain up to its confidence": mid,
+        "full network at the unsure pixels + the chain on the mixed volume": last,
+        "(inside the last: the full network's tower on both images)": tower}}
+
+
 #: the stages of a learned chain that are its network: the tower, and the head (its matching cost)
 NETWORK_STAGES = ("tower features", "matching cost")
 
@@ -344,7 +393,9 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -
         for name, t in prof["stages"].items():
             print(f"  {which} {name:45s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
         print(f"  {which}: exact head (extrapolated): {prof['exact']}", flush=True)
-    chains = {m: chain_memory(max_disp, m, data) for m in (*LEARNED, "census")}
+    profiles["cascade"] = cascade_profile(left, right, max_disp)
+    print(f"  cascade (q = {CASCADE[2]:g}): {profiles['cascade']['stages']}", flush=True)
+    chains = {m: chain_memory(max_disp, m, data) for m in (*LEARNED, "census", "cascade")}
     best = learned_setup("best", max_disp)[2]
     print(f"  whole chains, warm, fresh processes: {chains}", flush=True)
     demo = demo_memory(repeats)

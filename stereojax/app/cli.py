@@ -47,7 +47,8 @@ def _resolve(args, width: int = 0, height: int = 0, dataset: str | None = None, 
     if max_disp is None:
         max_disp = config.max_disp if config is not None else DEFAULT_MAX_DISP
     return resolve(args.method, getattr(args, "weights", None), config, width, height, dataset,
-                   max_disp, getattr(args, "exact_head", False), getattr(args, "scene", "auto"))
+                   max_disp, getattr(args, "exact_head", False), getattr(args, "scene", "auto"),
+                   getattr(args, "cascade", None), getattr(args, "cascade_weights", None))
 
 
 def _calibration(args, show: bool = True):
@@ -133,13 +134,21 @@ def _predict(args, pairs, batch, out, devices, calib, calib_line) -> int:
     if not batch and args.ray:
         raise ConfigError("--ray runs a batch: give two folders, a KITTI training/ or testing/ folder, a folder of "
                           "Middlebury scenes or a pair list (one pair runs here without --ray)")
+    if not batch and args.sequence:
+        raise ConfigError("--sequence needs several pairs: two folders, a KITTI folder or a pair list")
     if not batch:
         print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
         return 0
     unmatched = getattr(pairs, "unmatched", [])
     if unmatched:
         print(f"stereojax predict: {unmatched_line(unmatched)}", file=sys.stderr)
-    if args.ray:
+    if args.sequence:
+        if args.ray:
+            raise ConfigError("--sequence runs its frames in order on one device; it takes no --ray")
+        from stereojax.app.sequence_run import predict_sequence
+        s = predict_sequence(pairs, out, resolve, opts, fps=args.fps, overwrite=args.overwrite, verify=args.verify,
+                             unmatched=unmatched, announced=announced)
+    elif args.ray:
         s = predict_batch_ray(pairs, out, resolve, args.ray, workers=args.ray_workers, overwrite=args.overwrite,
                               verify=args.verify, unmatched=unmatched, announced=announced, **opts)
     else:

@@ -30,7 +30,7 @@ def run_demo(sample, run, out: Path) -> dict:
     kept = {}
 
     def with_confidence(s, md):
-        predictor = Predictor(run.config.with_max_disp(md), model, confidence=True)
+        predictor = Predictor(run.config.with_max_disp(md), model, confidence=True, cascade=run.cascade_arg())
         (disp, conf), timings = predictor.timed(s.left, s.right, phases)
         kept["confidence"] = conf
         return disp, timings

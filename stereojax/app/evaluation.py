@@ -54,13 +54,14 @@ def _masks(sample, regions) -> dict | None:
     return None if any(m is None for m in out.values()) else out
 
 
-def chain_method(config, model=None, phases=None) -> Callable:
+def chain_method(config, model=None, phases=None, cascade=None) -> Callable:
     """The stereojax chain ``config`` (its max_disp replaced per frame) as a method: runs through
     :class:`stereojax.inference.predictor.Predictor` on the calling :func:`~stereojax.devices.map_frames`
-    worker's device, compilation timed apart (``compile_s``)."""
+    worker's device, compilation timed apart (``compile_s``); ``cascade``: a
+    :class:`~stereojax.matching_cost.cascade.Cascade` with ``model`` as its student."""
 
     def predict(sample, max_disp):
-        predictor = Predictor(config.with_max_disp(max_disp), model, current_device())
+        predictor = Predictor(config.with_max_disp(max_disp), model, current_device(), cascade=cascade)
         return predictor.timed(sample.left, sample.right, phases)
     return predict
 
@@ -244,7 +245,7 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
     out = Path(out)
     if devices and len(devices) > 1:
         print(f"{len(devices)} devices, one frame each at a time", file=sys.stderr)
-    methods = {"pipeline": chain_method(run.config, run.model())}
+    methods = {"pipeline": chain_method(run.config, run.model(), cascade=run.cascade_arg())}
     if sgbm:
         methods.update(sgbm=sgbm_method(pad=True), sgbm_unpadded=sgbm_method(pad=False))
     key = {"dataset": dataset, "gt": gt, "fill": fill, "max_disp": max_disp, "methods": list(methods),

@@ -67,6 +67,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "searched)")
         sp.add_argument("--config", help="JSON file with a full StereoConfig (overrides the chain "
                         "settings of --method; its cost.method must fit --method)")
+        sp.add_argument("--cascade", type=float, metavar="Q", help="the cascade: the student (--weights, default "
+                        "kitti2015_compact) everywhere, and the full network (--cascade-weights, default the "
+                        "model best picks) at the share Q (0 < Q <= 1, e.g. 0.2) of pixels where the student "
+                        "is least confident")
+        sp.add_argument("--cascade-weights", help="--cascade: the full network (a checkpoint or a shipped name)")
         sp.add_argument("--scene", default="auto", choices=["auto", "road", "indoor"], help="--method best: the "
                         "model for road frames (KITTI 2015) or indoor scenes (Middlebury); auto (default): road "
                         "when the frame is at least 2.5 times as wide as high, or by --dataset")
@@ -107,6 +112,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "frames already complete in --out with the same method, model, settings and inputs are kept)")
     sp.add_argument("--verify", action="store_true", help="a batch reads the SHA-256 of every kept frame's files "
                     "again (default: their sizes are checked); a frame that fails is computed again")
+    sp.add_argument("--sequence", action="store_true", help="the pairs are consecutive frames of one camera, in "
+                    "name order: each frame searches near the previous frame's confident disparities (falling back "
+                    "to the whole range at a scene cut or where the prior fails), and OUT/sequence.mp4 shows them")
+    sp.add_argument("--fps", type=float, default=10.0, help="--sequence: frames per second of the video (default 10, "
+                    "KITTI's)")
     sp.add_argument("--ray", metavar="ADDRESS", help="compute the batch on a Ray cluster: HOST:PORT, ray://HOST:PORT, "
                     "or auto (RAY_ADDRESS, else a new local cluster); same outputs and resume as a local batch "
                     "(needs pip install \"stereojax[ray]\"; OUT must be a folder every node sees)")

@@ -167,14 +167,21 @@ class Resolved:
     from_file: bool = False
     #: why this method and model run (e.g. the ``--method best`` rule that picked them)
     reason: str = ""
+    #: the cascade (:mod:`stereojax.matching_cost.cascade`): (the full network's weights file,
+    #: the share q of pixels it re-scores, its candidates per pixel); ``weights`` is then the
+    #: student's. None: one network
+    cascade: tuple | None = None
 
     @property
     def description(self) -> str:
         """One line that says what runs, e.g. "learned cost, shipped model kitti2015"."""
         if self.method != "learned":
             return f"{self.method} cost"
-        name = shipped_name(self.weights)
-        label = f"shipped model {name}" if name else f"weights {Path(self.weights).name}"
+        label = _model_label(self.weights)
+        if self.cascade is not None:
+            full, share, k = self.cascade
+            return (f"cascade q = {100 * share:g} %: learned cost, {label} everywhere, {_model_label(full)} at the "
+                    f"{100 * share:g} % least confident pixels ({k} candidates each)")
         head = ", exact head (every disparity)" if self.exact_head and not self.from_file else ""
         return f"learned cost, {label}{head}"
 
@@ -184,6 +191,9 @@ class Resolved:
         if self.method != "learned":
             return f"stereojax {self.method}"
         name = shipped_name(self.weights)
+        if self.cascade is not None:
+            full = shipped_name(self.cascade[0]) or Path(self.cascade[0]).name
+            return f"stereojax cascade {name or Path(self.weights).name} + {full} at q = {100 * self.cascade[1]:g} %"
         head = ", exact head" if self.exact_head and not self.from_file else ""
         return f"stereojax {name or Path(self.weights).name}{head}"
 
@@ -200,11 +210,31 @@ class Resolved:
         process and weights file), None for a classical one."""
         if self.method != "learned":
             return None
-        key = str(self.weights)
-        with _LOADED_LOCK:                  # map_frames workers may ask at the same time
-            if key not in _LOADED:
-                _LOADED[key] = load_model(self.weights)
-            return _LOADED[key]
+        return _load_once(self.weights)
+
+
+    def cascade_arg(self):
+        """The :class:`~stereojax.matching_cost.cascade.Cascade` for
+        :class:`~stereojax.inference.predictor.Predictor` (the full network loaded once per
+        process), or None for one network."""
+        if self.cascade is None:
+            return None
+        from stereojax.matching_cost.cascade import Cascade
+        full, share, k = self.cascade
+        return Cascade(_load_once(full), share, k)
+
+
+def _model_label(weights) -> str:
+    name = shipped_name(weights)
+    return f"shipped model {name}" if name else f"weights {Path(weights).name}"
+
+
+def _load_once(weights):
+    key = str(weights)
+    with _LOADED_LOCK:                  # map_frames workers may ask at the same time
+        if key not in _LOADED:
+            _LOADED[key] = load_model(weights)
+        return _LOADED[key]
 
 
 _LOADED: dict = {}
@@ -213,7 +243,8 @@ _LOADED_LOCK = threading.Lock()
 
 def resolve(method: str = "best", weights=None, config=None, width: int = 0, height: int = 0,
             dataset: str | None = None, max_disp: int = 228, exact_head: bool = False,
-            scene: str = "auto") -> Resolved:
+            scene: str = "auto", cascade: float | None = None, cascade_weights=None,
+            cascade_candidates: int = 16) -> Resolved:
     """What runs for an input, as values (nothing is changed in place).
 
     method: "best" (the default: the shipped model that fits the input, :func:`weights_for_input`,
@@ -222,8 +253,16 @@ def resolve(method: str = "best", weights=None, config=None, width: int = 0, hei
     settings (a classical one turns best into that method). width, height, dataset: the input,
     for best; scene: "auto" (by shape or data set), "road" or "indoor" (:func:`best_kind`).
     exact_head: the learned head at every disparity instead of the candidates. ``reason`` of the
-    result says why that method and model run.
+    result says why that method and model run. cascade: the share q in (0, 1] of pixels that the
+    full network (``cascade_weights``; default: the model ``best`` picks for the input) re-scores
+    where the student (``weights``; default :data:`CASCADE_STUDENT`) is least confident, at
+    ``cascade_candidates`` candidates each (:mod:`stereojax.matching_cost.cascade`).
     """
+    if cascade is not None:
+        return _resolve_cascade(method, weights, config, width, height, dataset, max_disp, scene, cascade,
+                                cascade_weights, cascade_candidates)
+    if cascade_weights:
+        raise ConfigError("--cascade-weights needs --cascade Q (the share of pixels the full network re-scores)")
 
     if weights in SHIPPED:
         weights = shipped_weights(weights)
@@ -258,3 +297,31 @@ def resolve(method: str = "best", weights=None, config=None, width: int = 0, hei
     else:
         cfg = preset(method, max_disp)
     return Resolved(method, Path(weights) if weights else None, cfg, bool(exact_head), config is not None, reason)
+
+
+#: the student a cascade runs everywhere when no --weights are given
+CASCADE_STUDENT = "kitti2015_compact"
+
+
+def _resolve_cascade(method, weights, config, width, height, dataset, max_disp, scene, share, full,
+                     candidates) -> Resolved:
+    if method not in ("best", "learned"):
+        raise ConfigError(f"--cascade needs --method best or learned (got --method {method})")
+    if config is not None:
+        raise ConfigError("--cascade runs its student's own chain settings; it takes no --config")
+    if not 0.0 < float(share) <= 1.0:
+        raise ConfigError(f"--cascade takes the share of pixels re-scored, in (0, 1] (e.g. 0.2), got {share}")
+    student = resolve("learned", weights or CASCADE_STUDENT, None, width, height, dataset, max_disp)
+    if not student.config.cost.candidates:
+        raise ConfigError("the cascade's student needs a pruned head (cost.candidates > 0 in its card)")
+    if full:
+        full_path = weights_path(full)
+        check_weights_exist(full_path)
+        why = "--cascade-weights"
+    else:
+        kind, why = best_kind(width, height, dataset, scene)
+        full_path = weights_for_input(width, height, dataset, scene)
+        if full_path is None:
+            raise ConfigError(f"no shipped {BEST[kind]} model for the cascade's full network; give --cascade-weights")
+    reason = f"--cascade {share:g}; full network by {why}"
+    return dataclasses.replace(student, cascade=(Path(full_path), float(share), int(candidates)), reason=reason)
