@@ -117,15 +117,19 @@ def summarise(results: dict) -> str:
              "`experiments/sequence.py`, one run on this machine (2 CPU cores). Settings: "
              f"{results['settings']}.", "",
              "## The six real KITTI two-frame sequences: second frame with the prior against per-frame", "",
-             "| method | per-frame s | with prior s | ratio | > 3 px apart (%) | prior share | fallbacks |",
-             "|---|---|---|---|---|---|---|"]
+             "| method | per-frame s | with prior s | ratio | > 3 px apart (%) | prior share | mean limit width (px) "
+             "| coarse pass skipped | fallbacks |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for m, r in results["methods"].items():
         rows = r["sequences"]
         fb = sum(1 for x in rows if not x["record"].get("used_prior"))
         lines.append(f"| {m} | {np.mean([x['per_frame_s'] for x in rows]):.2f} | "
                      f"{np.mean([x['sequence_s'] for x in rows]):.2f} | {np.mean([x['ratio'] for x in rows]):.2f} | "
                      f"{np.mean([x['disagree_3px'] for x in rows]):.2f} | "
-                     f"{np.mean([x['record'].get('prior_share', 0) for x in rows]) * 100:.1f} % | {fb} of {len(rows)} |")
+                     f"{np.mean([x['record'].get('prior_share', 0) for x in rows]) * 100:.1f} % | "
+                     f"{np.mean([x['record'].get('mean_limit_width', 0) for x in rows]):.1f} | "
+                     f"{sum(1 for x in rows if x['record'].get('coarse_pass') is False)} of {len(rows)} | "
+                     f"{fb} of {len(rows)} |")
     lines += ["", "## Synthetic scene cuts (first frame of one sequence, second frame of the next)", "",
               "| method | caught | how |", "|---|---|---|"]
     for m, r in results["methods"].items():

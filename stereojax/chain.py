@@ -144,7 +144,7 @@ def bands(left: jax.Array, right: jax.Array, config, valid=None):
 
 
 def _bands(st: State, config) -> State:
-    if not config.banded:
+    if not config.banded or st.offset is not None:     # given (a stream's prior): no coarse pass
         return st
     off_l, off_r = bands(st.left, st.right, config, st.valid)
     return st.replace(offset=limit_bands(off_l, st.limits, config), right_offset=off_r)
@@ -382,9 +382,11 @@ def model_args(config, model):
     return None, None
 
 
-def initial(left, right, valid=None, limits=None, variables=None, net=None) -> State:
-    """The state a frame starts with."""
-    return State(left, right, valid, limits, variables, net=net)
+def initial(left, right, valid=None, limits=None, variables=None, net=None, bands=None) -> State:
+    """The state a frame starts with; ``bands``: (left, right) band offsets ``i32[H, W]`` given
+    instead of the coarse pass's (a banded config only)."""
+    offset, right_offset = (None, None) if bands is None else bands
+    return State(left, right, valid, limits, variables, offset=offset, right_offset=right_offset, net=net)
 
 
 def split(config, net) -> int | None:
@@ -407,10 +409,10 @@ def front(left, right, config, variables=None, net=None, valid=None, limits=None
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
-def first_program(left, right, valid, config, variables=None, net=None, limits=None) -> State:
+def first_program(left, right, valid, config, variables=None, net=None, limits=None, bands=None) -> State:
     """First program of a two-program chain: :data:`STAGES` up to :func:`split` (the bands, the
     tower features of both views and the ranked candidates); the state without the variables."""
-    st = run(STAGES[:split(config, net)], initial(left, right, valid, limits, variables, net), config)
+    st = run(STAGES[:split(config, net)], initial(left, right, valid, limits, variables, net, bands), config)
     return st.replace(variables=None)
 
 

@@ -349,11 +349,14 @@ def cascade_profile(left, right, max_disp: int, share: float = CASCADE[2], repea
     _, last = _time(chain_._second, carry, vol, conf, fv, repeats=repeats)
     full = cascade.full
     _, tower = _time(jax.jit(lambda a, b: lc.tower_features(full.net, fv, a, b, valid)), lp, rp, repeats=repeats)
-    return {"share": share, "student": CASCADE[0], "full": CASCADE[1], "stages": {
-        "student: bands, tower, candidate chain": first,
-        "student: head, chain up to its confidence": mid,
-        "full network at the unsure pixels + the chain on the mixed volume": last,
-        "(inside the last: the full network's tower on both images)": tower}}
+    return {"share": share, "student": CASCADE[0], "full": CASCADE[1],
+            "stages": dict(zip(CASCADE_PROGRAMS, (first, mid, last, tower)))}
+
+
+#: the rows of :func:`cascade_profile`, in the order they run
+CASCADE_PROGRAMS = ("student: bands, tower, candidate chain", "student: head, chain up to its confidence",
+                    "full network at the unsure pixels + the chain on the mixed volume",
+                    "(inside the last: the full network's tower on both images)")
 
 
 #: the stages of a learned chain that are its network: the tower, and the head (its matching cost)

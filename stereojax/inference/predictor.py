@@ -95,20 +95,23 @@ class Predictor:
             return out[0] + np.float32(self.disp_range[0]), out[1]
         return out + np.float32(self.disp_range[0])
 
-    def _key(self, height: int, width: int, limited: bool = False):
+    def _key(self, height: int, width: int, limited: bool = False, given_bands: bool = False):
 
         return (bucket_shape(height, width), self.config, self.net, self.device, variable_shapes(self.variables),
-                self.confidence, bool(limited), self.cascade)
+                self.confidence, bool(limited), self.cascade, bool(given_bands))
 
-    def is_compiled(self, height: int, width: int, limited: bool = False) -> bool:
+    def is_compiled(self, height: int, width: int, limited: bool = False, given_bands: bool = False) -> bool:
         """Whether the chain for a ``height x width`` pair is compiled in this process already."""
-        return is_kept(self._key(height, width, limited))
+        return is_kept(self._key(height, width, limited, given_bands))
 
-    def compiled(self, height: int, width: int, limited: bool = False) -> tuple[CompiledChain, bool]:
+    def compiled(self, height: int, width: int, limited: bool = False,
+                 given_bands: bool = False) -> tuple[CompiledChain, bool]:
         """(the compiled chain for a ``height x width`` pair, whether it was compiled now);
-        ``limited``: the chain that takes per-pixel limits."""
-        shape, config, net, device, _, confidence, limited, cascade = self._key(height, width, limited)
-        return compiled_chain(shape, config, net, self.variables, device, confidence, limited, cascade)
+        ``limited``: the chain that takes per-pixel limits; ``given_bands``: the chain that takes
+        its band offsets instead of running the coarse pass."""
+        shape, config, net, device, _, confidence, limited, cascade, given = self._key(height, width, limited,
+                                                                                    given_bands)
+        return compiled_chain(shape, config, net, self.variables, device, confidence, limited, cascade, given)
 
     def limits(self, pixel_range, shape) -> np.ndarray | None:
         """``i32[2, H, W]`` per-pixel limits in the chain's disparities from ``pixel_range`` (two
@@ -119,18 +122,25 @@ class Predictor:
         lo = 0 if self.disp_range is None else self.disp_range[0]
         return check_pixel_range(pixel_range, tuple(shape[:2]), lo, lo + self.config.max_disp) - np.int32(lo)
 
-    def run(self, gl: np.ndarray, gr: np.ndarray, limits=None) -> np.ndarray:
+    def run(self, gl: np.ndarray, gr: np.ndarray, limits=None, bands=None) -> np.ndarray:
         """The chain on grey images already checked by :meth:`prepare`; ``limits`` from :meth:`limits`."""
-        chain, _ = self.compiled(*gl.shape, limited=limits is not None)
-        return self._offset(chain(gl, gr, self.variables, limits))
+        chain, _ = self.compiled(*gl.shape, limited=limits is not None, given_bands=bands is not None)
+        return self._offset(chain(gl, gr, self.variables, limits, bands))
 
-    def __call__(self, left, right, pixel_range=None) -> np.ndarray:
+    def __call__(self, left, right, pixel_range=None, bands=None) -> np.ndarray:
         """Dense sub-pixel disparity ``f32[H, W]`` (left view) of a rectified pair.
 
         pixel_range: None, or two ``[H, W]`` integer maps (MIN, MAX): pixel (y, x) takes a
         disparity MIN[y, x] <= d < MAX[y, x] (a prior from another sensor or an earlier frame),
-        intersected with the predictor's range; banded chains move each band inside it."""
+        intersected with the predictor's range; banded chains move each band inside it.
+        bands: (left, right) band offsets ``i32[H, W]`` of a banded config, in the chain's
+        disparities (each pixel's band is offset .. offset + band.width - 1), used instead of the
+        coarse pass (:class:`stereojax.inference.sequence.Sequence` gives them from its prior)."""
         limits = self.limits(pixel_range, np.shape(left))
+        if bands is not None:
+            if not self.config.banded:
+                raise ConfigError("bands= needs a banded config (band.width > 0)")
+            return self.run(*self.prepare(left, right), limits, tuple(np.asarray(b, np.int32) for b in bands))
         rows = self.strip_rows(left)
         if rows is not None:
             return self.in_strips(left, right, rows, limits=limits)

@@ -24,10 +24,10 @@ from stereojax.volume import CostVolume
 
 
 def _chain(left: jax.Array, right: jax.Array, config: StereoConfig, variables=None, net=None,
-           kept: dict | None = None, valid=None, limits=None) -> chain_mod.State:
+           kept: dict | None = None, valid=None, limits=None, bands=None) -> chain_mod.State:
     """Every stage of :data:`stereojax.chain.STAGES` in one program; ``kept``: see
-    :func:`stereojax.chain.run`."""
-    st = chain_mod.initial(left, right, valid, limits, variables, net)
+    :func:`stereojax.chain.run`; ``bands``: see :func:`stereojax.chain.initial`."""
+    st = chain_mod.initial(left, right, valid, limits, variables, net, bands)
     return chain_mod.run(chain_mod.STAGES, st, config, kept)
 
 
@@ -55,15 +55,17 @@ def disparity_grey(left: jax.Array, right: jax.Array, config: StereoConfig, vari
 
 @functools.partial(jax.jit, static_argnames=("config", "net", "confidence"))
 def disparity_padded(left: jax.Array, right: jax.Array, valid: jax.Array, config: StereoConfig,
-                     variables=None, net=None, confidence: bool = False, limits=None) -> jax.Array:
+                     variables=None, net=None, confidence: bool = False, limits=None, bands=None) -> jax.Array:
     """:func:`disparity_grey` on a pair padded (right and bottom) to its size bucket.
 
     valid: ``i32[2]``, the real (rows, columns); it is an argument, not a static value, so every
     frame of one bucket runs the same compiled program. Crop the result to ``[:rows, :cols]``.
     confidence: also return the confidence map (:func:`stereojax.validation.confidence_measure.confidence`).
     limits: per-pixel disparity limits ``i32[2, H, W]`` (MIN <= d < MAX, chain disparities) or None.
+    bands: (left, right) band offsets ``i32[H, W]`` instead of the coarse pass's, or None.
     """
-    return chain_mod.result(_chain(left, right, config, variables, net, valid=valid, limits=limits), confidence)
+    return chain_mod.result(_chain(left, right, config, variables, net, valid=valid, limits=limits, bands=bands),
+                            confidence)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "net"))
@@ -120,14 +122,15 @@ class CompiledChain:
     """
 
     def __init__(self, shape: tuple[int, int], config: StereoConfig, net=None, variables=None, device=None,
-                 confidence: bool = False, limited: bool = False, cascade=None):
+                 confidence: bool = False, limited: bool = False, cascade=None, given_bands: bool = False):
         """variables: the variables (or arrays of their shapes) the chain will be called with.
         confidence: the chain returns (disparity, confidence). limited: every call gives
         per-pixel disparity limits (:meth:`Predictor.__call__`'s ``pixel_range``). cascade: a
         :class:`~stereojax.matching_cost.cascade.CascadeSpec` (the full network where the
-        student, ``net``, is unsure); ``variables`` are then (the student's, the full network's)."""
+        student, ``net``, is unsure); ``variables`` are then (the student's, the full network's).
+        given_bands: every call gives the band offsets (a banded config; no coarse pass)."""
         self.shape, self.config, self.net, self.device = shape, config, net, device
-        self.confidence, self.limited, self.cascade = confidence, limited, cascade
+        self.confidence, self.limited, self.cascade, self.given_bands = confidence, limited, cascade, given_bands
         sharding = None if device is None else SingleDeviceSharding(device)
 
         def on_device(tree):
@@ -140,14 +143,18 @@ class CompiledChain:
         spec = jax.ShapeDtypeStruct(shape, jnp.float32, sharding=sharding)
         valid = jax.ShapeDtypeStruct((2,), jnp.int32, sharding=sharding)
         lim = jax.ShapeDtypeStruct((2,) + tuple(shape), jnp.int32, sharding=sharding) if limited else None
+        offs = None
+        if given_bands:
+            offs = (jax.ShapeDtypeStruct(shape, jnp.int32, sharding=sharding),) * 2
         self._two = chain_mod.two_programs(config, net)
         if cascade is not None and not self._two:
             raise ValueError("the cascade needs a pruned learned student (cost.candidates > 0)")
         if self._two:          # the method's two programs, the second fed the first's outputs
-            self._first = chain_mod.first_program.lower(spec, spec, valid, config, var_spec, net, lim).compile()
+            self._first = chain_mod.first_program.lower(spec, spec, valid, config, var_spec, net, lim,
+                                                        offs).compile()
             carry = on_device(jax.eval_shape(
-                lambda a, b, v, w, m: chain_mod.first_program(a, b, v, config, w, net, m),
-                spec, spec, valid, var_spec, lim))
+                lambda a, b, v, w, m, o: chain_mod.first_program(a, b, v, config, w, net, m, o),
+                spec, spec, valid, var_spec, lim, offs))
             if cascade is None:
                 self._second = chain_mod.second_program.lower(carry, config, var_spec, confidence).compile()
             else:              # the student up to its confidence, then the mixed volume's chain
@@ -158,13 +165,14 @@ class CompiledChain:
                                                               confidence).compile()
         else:
             self._compiled = disparity_padded.lower(spec, spec, valid, config, var_spec, net, confidence,
-                                                    lim).compile()
+                                                    lim, offs).compile()
 
-    def __call__(self, left: np.ndarray, right: np.ndarray, variables=None, limits=None) -> np.ndarray:
+    def __call__(self, left: np.ndarray, right: np.ndarray, variables=None, limits=None, bands=None) -> np.ndarray:
         """Disparity ``f32[H, W]`` of a grey pair in the bucket; variables: the network's, on
         this chain's device (:class:`Predictor` puts them there once); limits: ``i32[2, H, W]``
         per-pixel disparity limits (MIN <= d < MAX, chain disparities), given exactly when the
-        chain was compiled ``limited``."""
+        chain was compiled ``limited``; bands: (left, right) band offsets ``i32[H, W]``, given
+        exactly when it was compiled ``given_bands``."""
         h, w = left.shape
         if h > self.shape[0] or w > self.shape[1]:
             raise ValueError(f"a {w}x{h} pair does not fit the {wxh(self.shape)} bucket")
@@ -178,14 +186,19 @@ class CompiledChain:
             lim[0], lim[1] = 0, self.config.max_disp
             lim[:, :h, :w] = limits
             lim = jax.device_put(lim, self.device)
+        if (bands is not None) != self.given_bands:
+            raise ValueError("band offsets must be given exactly when the chain was compiled for them")
+        offs = None
+        if bands is not None:      # padding: the last real column's and row's bands
+            offs = jax.device_put(tuple(pad_to(np.asarray(b, np.int32), self.shape) for b in bands), self.device)
         if self.cascade is not None:
             student, full = variables
-            carry = self._first(lp, rp, valid, student, lim)
+            carry = self._first(lp, rp, valid, student, lim, offs)
             out = self._second(carry, *self._student(carry, student), full)
         elif self._two:
-            out = self._second(self._first(lp, rp, valid, variables, lim), variables)
+            out = self._second(self._first(lp, rp, valid, variables, lim, offs), variables)
         else:
-            out = self._compiled(lp, rp, valid, variables, lim)
+            out = self._compiled(lp, rp, valid, variables, lim, offs)
         if self.confidence:
             return np.asarray(out[0])[:h, :w], np.asarray(out[1])[:h, :w]
         return np.asarray(out)[:h, :w]
@@ -223,7 +236,7 @@ def variable_shapes(variables):
 
 def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, variables=None,
                    device=None, confidence: bool = False, limited: bool = False,
-                   cascade=None) -> tuple[CompiledChain, bool]:
+                   cascade=None, given_bands: bool = False) -> tuple[CompiledChain, bool]:
     """(the :class:`CompiledChain` of a bucket shape, config, architecture and device, whether it
     was compiled now); ``variables`` give the shapes only; ``cascade``: see :class:`CompiledChain`. Safe to call from the worker threads
     of :func:`stereojax.devices.map_frames`. Most callers want :class:`Predictor`.
@@ -231,7 +244,7 @@ def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, varia
     ``device`` None means the default device, named: a program compiled for it is the one a
     batch compiles for its first device, so both find one persistent-cache entry."""
     device = default_device(device)
-    key = (tuple(shape), config, net, device, variable_shapes(variables), confidence, limited, cascade)
+    key = (tuple(shape), config, net, device, variable_shapes(variables), confidence, limited, cascade, given_bands)
     with _COMPILED_LOCK:
         fresh = key not in _COMPILED
         if fresh:
@@ -246,7 +259,7 @@ def compiled_chain(shape: tuple[int, int], config: StereoConfig, net=None, varia
                 # The chains still kept are referenced here and stay compiled.
                 jax.clear_caches()
             _COMPILED[key] = CompiledChain(tuple(shape), config, net, variables, device, confidence, limited,
-                                           cascade)
+                                           cascade, given_bands)
         else:   # the most recently used last
             _COMPILED[key] = _COMPILED.pop(key)
         return _COMPILED[key], fresh

@@ -10,7 +10,11 @@ fallback) runs the ordinary chain. Every later frame takes per-pixel limits ``MI
   closer, and pixels move across the image between frames: the window covers that motion);
 * a pixel without a prior keeps the whole range (its band comes from the coarse pass);
 * the chain then runs with a narrower band (``band_width`` instead of the config's 48), which
-  is where the time goes: every band kernel costs in proportion to it.
+  is where the time goes: every band kernel costs in proportion to it;
+* where at least ``skip_coarse_share`` of the pixels have a prior, the bands come from the prior
+  too (each band centred on its pixel's limits; a pixel without a prior takes the nearest prior
+  pixel's of its row; the right view's from the left centre at its match) and the coarse pass
+  does not run.
 
 Fallbacks, each recorded in the frame's record:
 
@@ -52,6 +56,7 @@ class PriorSettings:
     max_pinned: float = 0.05
     min_agree: float = 0.85
     band_width: int = 24
+    skip_coarse_share: float = 0.9
 
 
 def prior_limits(disp: np.ndarray, conf: np.ndarray, max_disp: int, s: PriorSettings):
@@ -100,6 +105,31 @@ def agreement(probe: np.ndarray, probe_ok: np.ndarray, mn, mx, has, slack: float
         return 1.0
     inside = (probe >= mn - slack) & (probe <= mx - 1 + slack)
     return float((inside & seen).sum() / seen.sum())
+
+
+def prior_bands(mn, mx, has, k: int, max_disp: int) -> tuple[np.ndarray, np.ndarray]:
+    """(left, right) band offsets ``i32[H, W]`` of width ``k`` from a prior's limits: each band
+    centred on its pixel's limits; a pixel without a prior takes the nearest prior pixel's centre
+    in its row (the frame's median centre where a row has none); a right pixel x' the left
+    centre at its match x' + c, with c the left centre at x'."""
+    h, w = mn.shape
+    centre = ((mn + mx) // 2).astype(np.int64)
+    if not has.all():
+        cols = np.arange(w)
+        fill = int(np.median(centre[has])) if has.any() else max_disp // 2
+        for y in np.nonzero(~has.all(axis=1))[0]:
+            idx = np.nonzero(has[y])[0]
+            if idx.size == 0:
+                centre[y] = fill
+                continue
+            nearest = idx[np.clip(np.searchsorted(idx, cols), 0, idx.size - 1)]
+            before = idx[np.clip(np.searchsorted(idx, cols) - 1, 0, idx.size - 1)]
+            pick = np.where(np.abs(before - cols) < np.abs(nearest - cols), before, nearest)
+            centre[y] = np.where(has[y], centre[y], centre[y, pick])
+    left = np.clip(centre - k // 2, 0, max_disp - k)
+    match = np.clip(np.arange(w)[None, :] + centre, 0, w - 1)
+    right = np.clip(np.take_along_axis(centre, match, axis=1) - k // 2, 0, max_disp - k)
+    return left.astype(np.int32), right.astype(np.int32)
 
 
 def image_ncc(a: np.ndarray, b: np.ndarray, scale: int = 8) -> float:
@@ -165,8 +195,9 @@ class Sequence:
         t0 = time.perf_counter()
         if not self.full.is_compiled(height, width):
             self.full.compiled(height, width)
-        if not self.tight.is_compiled(height, width, limited=True):
-            self.tight.compiled(height, width, limited=True)
+        for given in (False, True) if self.tight.config.banded else (False,):
+            if not self.tight.is_compiled(height, width, limited=True, given_bands=given):
+                self.tight.compiled(height, width, limited=True, given_bands=given)
         return time.perf_counter() - t0
 
     def push(self, left, right) -> Frame:
@@ -217,7 +248,11 @@ class Sequence:
             record["fallback"] = (f"prior disagrees with this frame: a quick probe falls inside the limits at "
                                   f"{100 * agree:.1f} % of the prior pixels (< {100 * s.min_agree:g} %)")
             return self._plain(left, right, record)
-        disp, conf = self.tight(left, right, pixel_range=(mn, mx))
+        bands = None
+        if self.tight.config.banded and share >= s.skip_coarse_share:
+            bands = prior_bands(mn, mx, has, self.tight.config.band.width, self.max_disp)
+        record["coarse_pass"] = bands is None
+        disp, conf = self.tight(left, right, pixel_range=(mn, mx), bands=bands)
         pinned = pinned_share(disp, mn, mx, has, self.max_disp)
         record["pinned_share"] = round(pinned, 4)
         if pinned > s.max_pinned:

@@ -10,7 +10,8 @@ import pytest
 
 import stereojax
 from stereojax.data import io
-from stereojax.inference.sequence import PriorSettings, Sequence, image_ncc, pinned_share, prior_limits
+from stereojax.inference.sequence import (PriorSettings, Sequence, image_ncc, pinned_share, prior_bands,
+                                          prior_limits)
 from tests.helpers import banded_census, run_cli, shifted_pair
 
 
@@ -139,3 +140,36 @@ def test_sequence_refuses_one_pair_and_a_disp_range(tmp_path, capsys):
     code, _, stderr = run_cli(["predict", tmp_path / "L", tmp_path / "R", "--out", tmp_path / "o2", "--sequence",
                                "--method", "census", "--disp-range", "0", "32"], capsys)
     assert code != 0 and "--disp-range" in stderr
+
+
+def test_given_bands_equal_to_the_coarse_pass_change_nothing():
+    """A chain given the coarse pass's own band offsets computes what it computes with the
+    coarse pass (the bands are the only thing the coarse pass gives the chain)."""
+    import jax.numpy as jnp
+
+    from stereojax import chain
+    from stereojax.inference.programs import CompiledChain
+
+    cfg = banded_census(32, 16)
+    left, right = (a.astype(np.float32) for a in shifted_pair(6, h=40, w=72, seed=5))
+    off = chain.bands(jnp.asarray(left), jnp.asarray(right), cfg, jnp.array([40, 72]))
+    plain = CompiledChain((40, 72), cfg)(left, right)
+    given = CompiledChain((40, 72), cfg, given_bands=True)(left, right, bands=tuple(np.asarray(o) for o in off))
+    np.testing.assert_allclose(given, plain)
+    shifted = tuple(np.clip(np.asarray(o) + 8, 0, 16) for o in off)      # other bands: another answer
+    assert np.abs(CompiledChain((40, 72), cfg, given_bands=True)(left, right, bands=shifted) - plain).max() > 1
+
+
+def test_prior_bands_centre_on_the_limits_and_fill_unsure_pixels_from_their_row():
+    mn = np.full((3, 10), 20, np.int32)
+    mx = np.full((3, 10), 31, np.int32)
+    has = np.ones((3, 10), bool)
+    has[1, :4] = False
+    mn[1, :4], mx[1, :4] = 0, 64
+    mn[1, 4:], mx[1, 4:] = 40, 51
+    has[2] = False
+    left, right = prior_bands(mn, mx, has, 8, 64)
+    assert (left[0] == 21).all()                     # centre 25, 8 wide
+    assert (left[1] == 41).all()                     # row 1: its prior pixels' centre, unsure ones too
+    assert (left[2] == np.median([25] * 10 + [45] * 6) - 4).all()      # a row without any: the median
+    assert right.shape == left.shape and right.min() >= 0 and right.max() <= 56
