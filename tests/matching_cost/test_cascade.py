@@ -86,7 +86,7 @@ def test_the_student_as_its_own_full_network_changes_nothing(pair):
 def test_a_padded_pair_gets_the_unpadded_choice(pair):
     """In a size bucket, the share is of the real pixels and padding is never re-scored: the
     cascade's disparity of a padded pair equals that of the pair compiled for its exact size
-    (but within 4 px of the padded edge, where the chain's own filters see the padding)."""
+    (but within 4 px of the padded edges, where the chain's own filters see the padding)."""
     cfg, student = _student()
     _, full = _student(seed=7)
     left, right = pair
@@ -96,7 +96,7 @@ def test_a_padded_pair_gets_the_unpadded_choice(pair):
     exact = CompiledChain((40, 69), cfg, student.net, (student.variables, full.variables), cascade=cascade.spec())
     direct = exact(left[:, :69].astype(np.float32), right[:, :69].astype(np.float32),
                    (student.variables, full.variables))
-    np.testing.assert_allclose(bucketed[:, :-4], direct[:, :-4], atol=1e-4)
+    np.testing.assert_allclose(bucketed[:-4, :-4], direct[:-4, :-4], atol=1e-4)
 
 
 def test_bad_cascades_are_refused_in_one_line():
