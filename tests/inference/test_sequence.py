@@ -56,7 +56,12 @@ def seq():
     return Sequence(banded_census(32, 16), settings=PriorSettings(band_width=8, min_share=0.3))
 
 
-def test_a_stream_uses_its_prior_and_agrees_with_per_frame(seq):
+@pytest.mark.parametrize("skip_coarse", [False, True])
+def test_a_stream_uses_its_prior_and_agrees_with_per_frame(seq, skip_coarse):
+    """With the coarse pass (the default) and with bands placed by the prior (the fast setting)."""
+    if skip_coarse:
+        seq = Sequence(banded_census(32, 16), settings=PriorSettings(band_width=8, min_share=0.3,
+                                                                     skip_coarse_share=0.5))
     seq.reset()
     frames = _frames()
     first = seq.push(*frames[0])
@@ -64,6 +69,7 @@ def test_a_stream_uses_its_prior_and_agrees_with_per_frame(seq):
     for left, right in frames[1:]:
         f = seq.push(left, right)
         assert f.record["used_prior"], f.record
+        assert f.record["coarse_pass"] is not skip_coarse
         assert f.record["prior_share"] > 0.5
         plain = stereojax.Predictor(banded_census(32, 16))(left, right)
         inner = (slice(4, -4), slice(12, -4))
