@@ -12,8 +12,7 @@ from stereojax.config import (AggregationConfig, CostConfig, RefineConfig, SGMCo
                               preset)
 from stereojax.errors import (CheckpointError, ConfigError, InputWarning, MemoryBudgetError,
                               OutputError, StereoError, StereoInputError)
-from stereojax.inference.predictor import Predictor, disparity, stages
-from stereojax.matching_cost.cascade import Cascade
+from stereojax.inference.predictor import Cascade, Predictor, disparity, stages
 from stereojax.models.registry import load_model
 
 __all__ = [

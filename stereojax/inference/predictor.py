@@ -21,7 +21,7 @@ from stereojax.config import StereoConfig, preset
 from stereojax.errors import ConfigError
 from stereojax.inference import reporting, tiling
 from stereojax.inference.compile_cache import bucket_shape, ensure_enabled
-from stereojax.matching_cost.cascade import Cascade
+from stereojax.matching_cost.cascade import Cascade  # noqa: F401  (re-exported as stereojax.Cascade)
 from stereojax.inference.prepare import check_disp_range, check_pixel_range, prepare_pair, shift_right_image
 from stereojax.inference.programs import (CompiledChain, Volume, compiled_chain, default_device, disparity_from_volume,
                                           disparity_grey, is_kept, pad_to, stages_grey, variable_shapes,

@@ -56,6 +56,7 @@ def seq():
     return Sequence(banded_census(32, 16), settings=PriorSettings(band_width=8, min_share=0.3))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("skip_coarse", [False, True])
 def test_a_stream_uses_its_prior_and_agrees_with_per_frame(seq, skip_coarse):
     """With the coarse pass (the default) and with bands placed by the prior (the fast setting)."""
@@ -111,6 +112,7 @@ def test_too_little_prior_and_a_size_change_restart(seq):
     assert g.disparity.shape == (32, 64)
 
 
+@pytest.mark.slow
 def test_predict_sequence_writes_frames_records_and_a_video(tmp_path, capsys):
     frames = _frames(n=3)
     for i, (left, right) in enumerate(frames):
@@ -148,6 +150,7 @@ def test_sequence_refuses_one_pair_and_a_disp_range(tmp_path, capsys):
     assert code != 0 and "--disp-range" in stderr
 
 
+@pytest.mark.slow
 def test_given_bands_equal_to_the_coarse_pass_change_nothing():
     """A chain given the coarse pass's own band offsets computes what it computes with the
     coarse pass (the bands are the only thing the coarse pass gives the chain)."""

@@ -68,6 +68,7 @@ def pair():
     return shifted_pair(5, h=40, w=72, seed=2)
 
 
+@pytest.mark.slow
 def test_the_student_as_its_own_full_network_changes_nothing(pair):
     """Re-scoring every pixel with the student's own network at its own candidates rebuilds the
     student's volume exactly, so the cascade's disparity is the student's; another network as
@@ -83,6 +84,7 @@ def test_the_student_as_its_own_full_network_changes_nothing(pair):
     assert np.abs(mixed - alone[0]).max() > 0.5
 
 
+@pytest.mark.slow
 def test_a_padded_pair_gets_the_unpadded_choice(pair):
     """In a size bucket, the share is of the real pixels and padding is never re-scored: the
     cascade's disparity of a padded pair equals that of the pair compiled for its exact size
