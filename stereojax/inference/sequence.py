@@ -4,10 +4,12 @@
 fallback) runs the ordinary chain. Every later frame takes per-pixel limits ``MIN <= d < MAX``
 (the chain's ``pixel_range``) from the previous frame:
 
-* a pixel has a *prior* where some pixel within ``radius`` of it was confident in the previous
-  frame (confidence >= ``min_confidence``); its limits are the min .. max of those confident
-  disparities, widened by ``relative`` of the disparity and by ``margin`` pixels (objects come
-  closer, and pixels move across the image between frames: the window covers that motion);
+* a pixel has a *prior* where it was confident in the previous frame (confidence >=
+  ``min_confidence``) within ``own_radius`` of it; its limits are the min .. max of the confident
+  disparities within ``radius``, widened by ``relative`` of the disparity and by ``margin``
+  pixels (objects come closer, and pixels move across the image between frames: the window
+  covers that motion). An object unsure in the previous frame thus keeps the whole range, not
+  the limits of the confident background around it;
 * a pixel without a prior keeps the whole range (its band comes from the coarse pass);
 * the chain then runs with a narrower band (``band_width`` instead of the config's 48), which
   is where the time goes: every band kernel costs in proportion to it;
@@ -48,6 +50,7 @@ class PriorSettings:
     """How a frame's disparity becomes the next frame's limits (module docstring)."""
 
     min_confidence: float = 0.5
+    own_radius: int = 2
     radius: int = 16
     margin: int = 3
     relative: float = 0.25
@@ -58,8 +61,8 @@ class PriorSettings:
     max_pinned: float = 0.025
     min_agree: float = 0.97
     #: the band and the coarse pass: by default the config's band (48) and the coarse pass always, which
-    #: leaves the result as good as without a prior; band_width=32, skip_coarse_share=0.8 is 0.6x the
-    #: time but lost up to 2.5 points > 3 px on training frames (experiments/results/sequence.md)
+    #: leaves the result as good as without a prior; band_width=32, skip_coarse_share=0.8 takes about
+    #: 0.9x the time but lost up to 0.26 points > 3 px on validation (experiments/results/sequence.md)
     band_width: int = 48
     skip_coarse_share: float = 1.01
 
@@ -71,7 +74,8 @@ def prior_limits(disp: np.ndarray, conf: np.ndarray, max_disp: int, s: PriorSett
     k = np.ones((2 * s.radius + 1, 2 * s.radius + 1), np.uint8)
     lo = cv2.erode(np.where(sure, disp, np.float32(1e9)).astype(np.float32), k)
     hi = cv2.dilate(np.where(sure, disp, np.float32(-1e9)).astype(np.float32), k)
-    has = hi >= lo
+    near = np.ones((2 * s.own_radius + 1, 2 * s.own_radius + 1), np.uint8)
+    has = (hi >= lo) & (cv2.dilate(sure.astype(np.uint8), near) > 0)
     mn = np.floor(lo * (1 - s.relative)) - s.margin
     mx = np.ceil(hi * (1 + s.relative)) + s.margin + 1
     mn = np.where(has, np.clip(mn, 0, max_disp - 1), 0).astype(np.int32)

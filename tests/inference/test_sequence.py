@@ -20,9 +20,12 @@ def test_prior_limits_hold_the_confident_neighbourhood():
     disp[:, 15:] = 20.0
     conf = np.ones_like(disp)
     conf[:5] = 0.0                                    # rows 0-4 unsure
-    s = PriorSettings(radius=2, margin=1, relative=0.0, min_confidence=0.5)
+    conf[12:15, 20:25] = 0.0                           # an object unsure in the previous frame
+    s = PriorSettings(radius=2, own_radius=1, margin=1, relative=0.0, min_confidence=0.5)
     mn, mx, has = prior_limits(disp, conf, 64, s)
-    assert has[3:].all() and not has[:3].any()       # rows 3, 4 see confident rows within 2 px
+    assert has[4:12].all() and not has[:4].any()     # row 4 has a confident pixel within 1 px
+    assert has[12:15, 20].all() and not has[13, 22]   # inside the object: no prior, the whole range
+    assert mn[13, 22] == 0 and mx[13, 22] == 64
     assert (mn[10, :13] == 9).all() and (mx[10, :13] == 12).all()     # 10 +- 1, MAX exclusive
     assert mn[10, 15] == 9 and mx[10, 15] == 22       # near the step: both sides' disparities
     assert (mn[:3] == 0).all() and (mx[:3] == 64).all()               # no prior: the whole range
