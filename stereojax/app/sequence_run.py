@@ -12,6 +12,7 @@ each frame's record (``per_frame[i]["sequence"]``).
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -100,17 +101,24 @@ def write_video(out: Path, pairs, fps: float) -> Path | None:
     h = max(p.shape[0] for p in panels)
     w = max(p.shape[1] for p in panels)
     panels = [np.pad(p, ((0, h - p.shape[0]), (0, w - p.shape[1]), (0, 0))) for p in panels]
-    path = out / "sequence.mp4"
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
-    if writer.isOpened():
-        for p in panels:
-            writer.write(cv2.cvtColor(p, cv2.COLOR_RGB2BGR))
-        writer.release()
-        if path.is_file() and path.stat().st_size > 0:
-            return path
-    from PIL import Image          # an animated PNG where OpenCV writes no MP4
+    # written under a hidden name and renamed once complete: a killed run leaves no half video
+    tmp = out / f".sequence.partial-{os.getpid()}.mp4"
+    try:
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
+        if writer.isOpened():
+            for p in panels:
+                writer.write(cv2.cvtColor(p, cv2.COLOR_RGB2BGR))
+            writer.release()
+            if tmp.is_file() and tmp.stat().st_size > 0:
+                os.replace(tmp, out / "sequence.mp4")
+                return out / "sequence.mp4"
+        from PIL import Image          # an animated PNG where OpenCV writes no MP4
 
-    path = out / "sequence.png"
-    images = [Image.fromarray(p) for p in panels]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-    return path
+        tmp = tmp.with_suffix(".png")
+        images = [Image.fromarray(p) for p in panels]
+        images[0].save(tmp, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+        os.replace(tmp, out / "sequence.png")
+        return out / "sequence.png"
+    finally:
+        for leftover in (tmp, tmp.with_suffix(".mp4")):
+            leftover.unlink(missing_ok=True)

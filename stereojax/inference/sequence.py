@@ -199,12 +199,14 @@ class Sequence:
         self.index = 0
 
     def compile(self, height: int, width: int) -> float:
-        """Compile both chains (without and with limits) for this size; the seconds it took (0
-        when they were compiled already)."""
+        """Compile the chains this sequence can run for this size (without limits, with limits,
+        and with bands from the prior where the settings allow it); the seconds it took (0 when
+        they were compiled already)."""
         t0 = time.perf_counter()
         if not self.full.is_compiled(height, width):
             self.full.compiled(height, width)
-        for given in (False, True) if self.tight.config.banded else (False,):
+        prior_bands_possible = self.tight.config.banded and self.settings.skip_coarse_share <= 1.0
+        for given in (False, True) if prior_bands_possible else (False,):
             if not self.tight.is_compiled(height, width, limited=True, given_bands=given):
                 self.tight.compiled(height, width, limited=True, given_bands=given)
         return time.perf_counter() - t0

@@ -134,6 +134,7 @@ def test_predict_sequence_writes_frames_records_and_a_video(tmp_path, capsys):
     assert "fallback" in recs["f2"] and "ncc" in recs["f2"]
     video = [p for p in (out / "sequence.mp4", out / "sequence.png") if p.is_file()]
     assert video and video[0].stat().st_size > 0
+    assert not list(out.glob(".sequence.partial*"))
     timings = json.loads((out / "f2" / "timings.json").read_text())
     assert timings["sequence"] == recs["f2"]
 
