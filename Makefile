@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate results-evaluate bench train train-middlebury \
-        search-chain dense-distill dense-distill-final band-search middlebury-folds middlebury-folds-student augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain dense-distill dense-distill-final band-search middlebury-folds middlebury-folds-student middlebury-cascade augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -110,6 +110,9 @@ search-chain: $(STAMP)  ## search the KITTI model's chain settings on training f
 
 middlebury-folds-student: $(STAMP)  ## issue 26: the same folds for the compact student distilled from each fold's teacher (~35 min) -> experiments/results/middlebury_folds_student.*
 	$(EXP)/middlebury_folds.py --data $(DATA) --init kitti2015 --border neutral --student
+
+middlebury-cascade: $(STAMP)  ## issue 38: the folds of middlebury-folds-student plus the cascade (fold student everywhere, fold teacher at q = 5-40 % of pixels) and the fold teacher's time (~55 min) -> experiments/results/middlebury_folds_cascade.*
+	$(EXP)/middlebury_folds.py --data $(DATA) --init kitti2015 --border neutral --cascade 0.05,0.1,0.2,0.4
 
 middlebury-folds: $(STAMP)  ## Middlebury, 3 folds: fine-tune the shipped KITTI model, search settings, score held-out scenes vs SGBM, neutral strip (~40 min) -> experiments/results/middlebury_folds_neutral.*
 	$(EXP)/middlebury_folds.py --data $(DATA) --init kitti2015 --border neutral

@@ -18,6 +18,13 @@ cached at STUDENT_PIXELS pixels of each banded training scene (runs/.../fold*_ta
 and the shipped `kitti2015_compact` is fine-tuned on the GT patches plus those targets, its chain
 settings searched and its held-out scenes scored beside census and SGBM ->
 OUT/middlebury_folds_student.{md,json}.
+
+--cascade Q[,Q...] (issue 38, item 4; PROTOCOL.md, "The Middlebury cascade of issue 38"): as
+--student, and each held-out scene is also scored by the cascade (the fold student everywhere, the
+fold teacher's head at the share Q of least-confident pixels; stereojax.matching_cost.cascade) at
+every Q, with the student's searched settings, and by the fold teacher with the preset settings
+(the full network's time in the same run) -> OUT/middlebury_folds_cascade.{md,json}.
+
 """
 
 import argparse
@@ -41,6 +48,7 @@ from stereojax.learning.dense_distill import cache_targets, load_targets  # noqa
 from stereojax.data.images import as_grey  # noqa: E402
 from stereojax.models.registry import load_model, shipped_weights, weights_path  # noqa: E402
 from stereojax.learning.train import fit, train_preset  # noqa: E402
+from stereojax.matching_cost.cascade import Cascade  # noqa: E402
 
 #: three folds, balanced by pixels; every scene is held out exactly once
 FOLDS = [["Aloe_opencv", "Venus_2001"],
@@ -55,6 +63,8 @@ STUDENT_INIT = "kitti2015_compact"
 STUDENT_PIXELS = 20000
 #: the fold record of the full network (middlebury_folds_neutral.md): the student's bar
 STUDENT_BAR = 4.58
+#: --cascade: the full network's head evaluations per re-scored pixel (as on KITTI)
+CASCADE_CANDIDATES = 16
 
 
 def main():
@@ -76,7 +86,12 @@ def main():
     ap.add_argument("--border", default="neutral", choices=["replicate", "neutral"],
                     help="cost.border of the learned chain (the out-of-view strip, neutral as in the shipped cards; "
                          "replicate is written as middlebury_folds.*, the earlier record)")
+    ap.add_argument("--cascade", type=lambda v: [float(q) for q in v.split(",")], default=None,
+                    help="issue 38: also score the cascade at these shares q of re-scored pixels, e.g. "
+                         "0.05,0.1,0.2,0.4 (implies --student)")
     args = ap.parse_args()
+    if args.cascade:
+        args.student = True
     folds = [["Tsukuba_2001"], ["Venus_2001"]] if args.quick else FOLDS
     space = SPACE[:1] if args.quick else SPACE
     if args.quick:      # a bottom-centre crop of each scene: the smoke test runs every step, at a smaller size
@@ -102,6 +117,7 @@ def main():
                       "init": args.init})
         model = load_model(run / "checkpoint.msgpack")
         train_s = time.perf_counter() - t0
+        teacher = model
         if args.student:
             model, base_i, train_s, dense_info = fold_student(args, i, run, model, base, train_names, load)
         else:
@@ -116,8 +132,13 @@ def main():
                           "train_seconds": train_s, "config": best.to_dict(), "trials": log, **dense_info})
         print(f"fold {i}: settings {changes(base_i, best) or 'preset'} ({start_err:.2f} -> {best_err:.2f} "
               "mean of > 2 / > 3 px on its training scenes)", flush=True)
-        methods = {"learned": chain_method(best, model), "learned_preset": chain_method(base_i, model),
-                   "census": chain_method(stereojax.preset("census")), "sgbm": sgbm_method(pad=True)}
+        methods = {"learned": chain_method(best, model), "learned_preset": chain_method(base_i, model)}
+        if args.cascade:        # the student with its preset settings was recorded by --student
+            del methods["learned_preset"]
+            methods.update({f"cascade {100 * q:g} %": chain_method(best, model, cascade=Cascade(
+                teacher, q, CASCADE_CANDIDATES).check()) for q in args.cascade})
+            methods["full_preset"] = chain_method(base, teacher)
+        methods.update({"census": chain_method(stereojax.preset("census")), "sgbm": sgbm_method(pad=True)})
         result = evaluate_frames([load(name) for name in held], methods, lambda s: search_range("middlebury", s, None))
         for r in result["frames"]:
             row = {"scene": r["frame"], "fold": i, "max_disp": r["max_disp"], **{m: r[m] for m in methods}}
@@ -129,6 +150,10 @@ def main():
     methods = [("learned", f"fine-tuned {who} + fold's searched settings"),
                ("learned_preset", f"fine-tuned {who}, preset settings"),
                ("census", "census chain"), ("sgbm", "OpenCV SGBM, left-padded")]
+    if args.cascade:
+        methods = ([("learned", "student + fold's searched settings")]
+                   + [(f"cascade {100 * q:g} %", f"cascade q = {100 * q:g} %") for q in args.cascade]
+                   + [("full_preset", "fold teacher (full network), preset settings")] + methods[2:])
     mean = {m: {k: float(np.mean([r[m][k] for r in rows])) for k in KEYS} for m, _ in methods}
 
     def mean_s(m):
@@ -136,7 +161,10 @@ def main():
     table = [[r["scene"], r["fold"], r["max_disp"]] + [f"{r[m]['bad2']:.2f} / {r[m]['bad3']:.2f}" for m, _ in methods]
              for r in rows]
     table.append(["**mean**", "", ""] + [f"**{mean[m]['bad2']:.2f} / {mean[m]['bad3']:.2f}**" for m, _ in methods])
-    if args.student:
+    if args.cascade:
+        table.append(["**mean warm s**", "", ""] + [f"{mean_s(m):.2f}" for m, _ in methods])
+        title, verdict = cascade_title(args, cfg, mean, mean_s)
+    elif args.student:
         title = ("# Middlebury with folds: the compact student of issue 26 (> 2 px / > 3 px %, all-pixel GT)\n\n"
                  f"Each scene scored by `{STUDENT_INIT}` fine-tuned on the other folds' scenes (GT patches, "
                  f"{cfg.steps} steps, lr {args.lr}) with dense distillation from that fold's teacher (`{args.init}` "
@@ -157,7 +185,9 @@ def main():
           + "\n".join(f"* fold {f['fold']} (held out {', '.join(f['held_out'])}): settings "
                       f"{f['changes'] or 'the preset'} (searched on {', '.join(f['searched_on'])}: "
                       f"{f['search_start']:.2f} -> {f['search_best']:.2f})" for f in fold_info) + "\n")
-    if args.student:
+    if args.cascade:
+        stem = "middlebury_folds_cascade" + ("_quick" if args.quick else "")
+    elif args.student:
         stem = "middlebury_folds_student" + ("_quick" if args.quick else "")
     elif args.quick:
         stem = "middlebury_folds_quick"
@@ -169,9 +199,45 @@ def main():
                                       "scenes": rows, "mean": mean, "student": args.student,
                                       **({"student_bar": STUDENT_BAR,
                                           "becomes_best": mean["learned"]["bad3"] <= STUDENT_BAR,
-                                          "seconds": {m: mean_s(m) for m, _ in methods}} if args.student else {})})
+                                          "seconds": {m: mean_s(m) for m, _ in methods}} if args.student else {}),
+                                      **({"cascade": args.cascade, "candidates": CASCADE_CANDIDATES,
+                                          "rule": verdict} if args.cascade else {})})
     (out / f"{stem}.md").write_text(md + f"\nCommand: `python experiments/middlebury_folds.py {' '.join(sys.argv[1:])}`\n")
     print(md)
+
+
+def cascade_title(args, cfg, mean, mean_s):
+    """--cascade: the record's title and the rule's verdict (PROTOCOL.md, "The Middlebury cascade
+    of issue 38"): the smallest q at <= STUDENT_BAR mean > 3 px whose mean warm time is at most a
+    third of the fold teacher's."""
+    full_s = mean_s("full_preset")
+    rows = [{"q": q, "bad3": mean[f"cascade {100 * q:g} %"]["bad3"], "seconds": mean_s(f"cascade {100 * q:g} %")}
+            for q in sorted(args.cascade)]
+    accurate = [r for r in rows if r["bad3"] <= STUDENT_BAR]
+    chosen = accurate[0] if accurate else None
+    passes = chosen is not None and chosen["seconds"] <= full_s / 3
+    if chosen is None:
+        sentence = (f"no q reaches {STUDENT_BAR:.2f} % (the best is {min(r['bad3'] for r in rows):.2f} %), "
+                    "so `best` for non-road pairs stays the full network")
+    elif passes:
+        sentence = (f"q = {100 * chosen['q']:g} % reaches {chosen['bad3']:.2f} % in {chosen['seconds']:.2f} s, at most "
+                    f"a third of the fold teacher's {full_s:.2f} s: `best` for non-road pairs becomes the cascade")
+    else:
+        sentence = (f"the smallest q at <= {STUDENT_BAR:.2f} % is {100 * chosen['q']:g} % ({chosen['bad3']:.2f} %), "
+                    f"and it takes {chosen['seconds']:.2f} s against the allowed {full_s / 3:.2f} s (a third of the "
+                    f"fold teacher's {full_s:.2f} s): it misses by {chosen['seconds'] - full_s / 3:.2f} s, so `best` "
+                    "for non-road pairs stays the full network")
+    title = ("# Middlebury with folds: the cascade of issue 38 (> 2 px / > 3 px %, all-pixel GT)\n\n"
+             f"Per fold, the student of issue 26 (`{STUDENT_INIT}` fine-tuned {cfg.steps} steps with dense distillation "
+             f"from the fold teacher, its chain settings searched on the training scenes) runs everywhere; at the share q "
+             f"of its least-confident real pixels the fold teacher (`{args.init}` fine-tuned the same way) re-scores "
+             f"its {CASCADE_CANDIDATES} best census candidates, and the student's chain runs once more on the mixed "
+             "volume. The fold teacher with the learned preset settings gives the full network's time in this run "
+             f"(its searched-settings fold record, {STUDENT_BAR:.2f} %, is the bar). Last row: mean warm seconds per "
+             "scene (2 CPU cores, this run).\n\n"
+             f"**The rule** (PROTOCOL.md, \"The Middlebury cascade of issue 38\"): {sentence}.\n\n")
+    return title, {"chosen_q": chosen["q"] if chosen else None, "passes": passes, "full_seconds": full_s,
+                   "allowed_seconds": full_s / 3, "curve": rows, "sentence": sentence}
 
 
 def fold_student(args, i, teacher_run, teacher, base, train_names, load):

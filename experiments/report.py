@@ -26,7 +26,7 @@ SECTIONS = [
     ("depth_example", "make depth-example"),
 ]
 #: the paper's tables that docs/results.md shows, each from experiments/results/<name>.md
-DOC_TABLES = ["table1", "table2", "table3", "table4", "cascade_curve"]
+DOC_TABLES = ["table1", "table2", "table3", "table4", "cascade_curve", "middlebury_folds_cascade"]
 #: the README's results table: (evaluate folder, label, bench chain); numbers from the files
 README_ROWS = [
     ("evaluate_kitti2015_best", "**`best` = `kitti2015`** (paper's network, 8 head evaluations per pixel)",

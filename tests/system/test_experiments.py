@@ -134,9 +134,10 @@ def test_middlebury_folds_quick(dirs):
             assert in_range(r[m]["bad2"]) and in_range(r[m]["bad3"]) and r[m]["bad3"] <= r[m]["bad2"]
 
 
-def test_middlebury_folds_student_quick(dirs):
-    run("middlebury_folds.py", dirs, "--student")
-    data = json.loads((dirs["out"] / "middlebury_folds_student_quick.json").read_text())
+def test_middlebury_folds_student_cascade_quick(dirs):
+    """--cascade runs the --student folds and scores the cascade beside them (one run covers both)."""
+    run("middlebury_folds.py", dirs, "--cascade", "0.1,0.5")
+    data = json.loads((dirs["out"] / "middlebury_folds_cascade_quick.json").read_text())
     assert data["student"] is True and [r["scene"] for r in data["scenes"]] == ["Tsukuba_2001", "Venus_2001"]
     for fold in data["folds"]:                # the compact student, distilled from the fold's own teacher
         assert fold["student_init"] == "kitti2015_compact" and fold["target_pixels"] > 0
@@ -145,7 +146,16 @@ def test_middlebury_folds_student_quick(dirs):
     trained = json.loads((dirs["runs"] / "fold0_s0_quick_student" / "config.json").read_text())
     assert trained["net"]["features"] == 16 and trained["dense"] == 1.0 and trained["init"] == "kitti2015_compact"
     assert data["becomes_best"] == (data["mean"]["learned"]["bad3"] <= data["student_bar"])
-    assert all(data["seconds"][m] > 0 for m in ("learned", "census", "sgbm"))
+    methods = ("learned", "cascade 10 %", "cascade 50 %", "full_preset", "census", "sgbm")
+    assert all(data["seconds"][m] > 0 for m in methods)
+    for r in data["scenes"]:
+        for m in methods:
+            assert in_range(r[m]["bad2"]) and in_range(r[m]["bad3"]) and r[m]["bad3"] <= r[m]["bad2"]
+    rule = data["rule"]                       # the PROTOCOL rule, recomputed from the record's own numbers
+    fits = [c for c in rule["curve"] if c["bad3"] <= data["student_bar"]]
+    assert rule["chosen_q"] == (fits[0]["q"] if fits else None)
+    assert rule["passes"] == bool(fits and fits[0]["seconds"] <= data["seconds"]["full_preset"] / 3)
+    assert "**The rule**" in (dirs["out"] / "middlebury_folds_cascade_quick.md").read_text()
 
 
 def test_self_training_quick(dirs):
