@@ -39,10 +39,10 @@ install: $(STAMP)  ## create .venv and install stereojax with its dependencies
 # two worker processes (pytest-xdist) share the suite's compile cache: 34 -> 25 min on 2 cores
 TEST_WORKERS ?= 2
 test: $(STAMP)  ## run the whole test suite (slow tests included) [TEST_WORKERS=2]
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
 test-fast: $(STAMP)  ## run the tests not marked slow
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not slow"
+	$(PY) -m pytest -q -n $(TEST_WORKERS) -m "not slow"
 
 demo: $(STAMP)  ## disparity of the built-in Motorcycle pair -> $(OUT)/demo
 	$(CLI) demo --out $(OUT)/demo

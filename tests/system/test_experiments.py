@@ -12,9 +12,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data"
 
-#: Tests that read what an earlier test of this module wrote (the report reads the tables; the sweep
-#: reuses Table 1's runs; the cascade folds reuse the plain folds' teachers) share an xdist group,
-#: so that `pytest -n N --dist loadgroup` (the Makefile's) runs them in order in one worker.
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not (DATA / "kitti2015").is_dir(), reason=f"real data not found at {DATA}")]
 
@@ -49,7 +46,6 @@ def in_range(x, lo=0.0, hi=100.0):
     return isinstance(x, (int, float)) and math.isfinite(x) and lo <= x <= hi
 
 
-@pytest.mark.xdist_group("report")
 def test_table1_quick(dirs):
     out = run("table1.py", dirs)
     data, md = load(dirs, "table1")
@@ -61,7 +57,6 @@ def test_table1_quick(dirs):
     assert "> 3 px" in out
 
 
-@pytest.mark.xdist_group("report")
 def test_sweep_delta_quick_reuses_table1_runs(dirs):
     runs_before = {p.parent.name for p in dirs["runs"].rglob("train_summary.json")}
     run("sweep_delta.py", dirs, "--deltas", "0", "0.05", "0.1")
@@ -77,7 +72,6 @@ def test_sweep_delta_quick_reuses_table1_runs(dirs):
     assert png.is_file() and png.stat().st_size > 1000
 
 
-@pytest.mark.xdist_group("report")
 def test_compare_quick(dirs):
     run("compare.py", dirs, "--dataset", "kitti2015")
     data, md = load(dirs, "table4")
@@ -90,7 +84,6 @@ def test_compare_quick(dirs):
     assert "MC-CNN-fast" in md and "StereoSGBM" in md
 
 
-@pytest.mark.xdist_group("report")
 def test_figures_and_depth_quick(dirs):
     import cv2
 
@@ -110,7 +103,6 @@ def test_figures_and_depth_quick(dirs):
     assert ply.is_file() and ply.read_bytes().startswith(b"ply")
 
 
-@pytest.mark.xdist_group("report")
 def test_report_collects_the_quick_tables(dirs):
     run("report.py", dirs)
     text = (dirs["out"] / "REPORT_quick.md").read_text()
@@ -129,7 +121,6 @@ def test_augment_compare_quick(dirs):
     assert "Difference (augmented - none)" in (dirs["out"] / "augment_compare_quick.md").read_text()
 
 
-@pytest.mark.xdist_group("middlebury_folds")
 def test_middlebury_folds_quick(dirs):
     run("middlebury_folds.py", dirs)
     data = json.loads((dirs["out"] / "middlebury_folds_quick.json").read_text())
@@ -143,7 +134,6 @@ def test_middlebury_folds_quick(dirs):
             assert in_range(r[m]["bad2"]) and in_range(r[m]["bad3"]) and r[m]["bad3"] <= r[m]["bad2"]
 
 
-@pytest.mark.xdist_group("middlebury_folds")
 def test_middlebury_folds_student_cascade_quick(dirs):
     """--cascade runs the --student folds and scores the cascade beside them (one run covers both)."""
     run("middlebury_folds.py", dirs, "--cascade", "0.1,0.5")
