@@ -39,7 +39,7 @@ install: $(STAMP)  ## create .venv and install stereojax with its dependencies
 # two worker processes (pytest-xdist) share the suite's compile cache: 34 -> 25 min on 2 cores
 TEST_WORKERS ?= 2
 test: $(STAMP)  ## run the whole test suite (slow tests included) [TEST_WORKERS=2]
-	$(PY) -m pytest -q -n $(TEST_WORKERS)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --durations=20
 
 test-fast: $(STAMP)  ## run the tests not marked slow
 	$(PY) -m pytest -q -n $(TEST_WORKERS) -m "not slow"

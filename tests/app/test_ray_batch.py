@@ -32,11 +32,27 @@ def _free_port() -> int:
 
 
 @pytest.fixture(scope="module")
-def cluster():
+def cluster(tmp_path_factory):
     """A one-node Ray cluster on this machine with 2 CPUs (``ray start --head``); its address.
     (On the loopback address alone, ``--node-ip-address 127.0.0.1``, this Ray version rewrites
     the address to the machine's and then cannot connect: the head binds the machine's own
-    interface here, which nothing outside reaches either.)"""
+    interface here, which nothing outside reaches either.) ``ray stop`` stops every Ray process
+    of the machine, so the workers of ``pytest -n`` take turns: each holds a lock file of the
+    run while its cluster is up (a cluster stopped under the other worker's tests failed them)."""
+    import fcntl
+
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):     # the workers' folders share this parent
+        shared = shared.parent
+    with open(shared / "ray-cluster.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield from _cluster()
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def _cluster():
     import re
 
     port = _free_port()

@@ -46,7 +46,7 @@ def in_range(x, lo=0.0, hi=100.0):
     return isinstance(x, (int, float)) and math.isfinite(x) and lo <= x <= hi
 
 
-def test_table1_quick(dirs):
+def _table1(dirs):
     out = run("table1.py", dirs)
     data, md = load(dirs, "table1")
     assert len(data["cells"]) == 2 * 4          # 2 losses x 4 train->test columns
@@ -57,7 +57,7 @@ def test_table1_quick(dirs):
     assert "> 3 px" in out
 
 
-def test_sweep_delta_quick_reuses_table1_runs(dirs):
+def _sweep_delta_reuses_table1_runs(dirs):
     runs_before = {p.parent.name for p in dirs["runs"].rglob("train_summary.json")}
     run("sweep_delta.py", dirs, "--deltas", "0", "0.05", "0.1")
     data, md = load(dirs, "table2")
@@ -72,7 +72,7 @@ def test_sweep_delta_quick_reuses_table1_runs(dirs):
     assert png.is_file() and png.stat().st_size > 1000
 
 
-def test_compare_quick(dirs):
+def _compare(dirs):
     run("compare.py", dirs, "--dataset", "kitti2015")
     data, md = load(dirs, "table4")
     methods = data["methods"]
@@ -84,7 +84,7 @@ def test_compare_quick(dirs):
     assert "MC-CNN-fast" in md and "StereoSGBM" in md
 
 
-def test_figures_and_depth_quick(dirs):
+def _figures_and_depth(dirs):
     import cv2
 
     run("figures.py", dirs)
@@ -103,12 +103,23 @@ def test_figures_and_depth_quick(dirs):
     assert ply.is_file() and ply.read_bytes().startswith(b"ply")
 
 
-def test_report_collects_the_quick_tables(dirs):
+def _report_collects_the_quick_tables(dirs):
     run("report.py", dirs)
     text = (dirs["out"] / "REPORT_quick.md").read_text()
     for title in ("Table 1", "Table 2", "Table 4", "Figures 5-8", "Depth from a KITTI pair"):
         assert title in text
     assert "Not run yet: `make table3`" in text     # table3 was not made in this test
+
+
+def test_tables_figures_and_the_report_quick(dirs):
+    """One test, since each step reads what the one before it wrote (and tests split over pytest -n
+    workers do not share a folder): Table 1, the sweep on its runs, Table 4, the figures and
+    depth, then the report over all of them."""
+    _table1(dirs)
+    _sweep_delta_reuses_table1_runs(dirs)
+    _compare(dirs)
+    _figures_and_depth(dirs)
+    _report_collects_the_quick_tables(dirs)
 
 
 def test_augment_compare_quick(dirs):
@@ -121,7 +132,7 @@ def test_augment_compare_quick(dirs):
     assert "Difference (augmented - none)" in (dirs["out"] / "augment_compare_quick.md").read_text()
 
 
-def test_middlebury_folds_quick(dirs):
+def _middlebury_folds(dirs):
     run("middlebury_folds.py", dirs)
     data = json.loads((dirs["out"] / "middlebury_folds_quick.json").read_text())
     assert [r["scene"] for r in data["scenes"]] == ["Tsukuba_2001", "Venus_2001"]
@@ -134,7 +145,7 @@ def test_middlebury_folds_quick(dirs):
             assert in_range(r[m]["bad2"]) and in_range(r[m]["bad3"]) and r[m]["bad3"] <= r[m]["bad2"]
 
 
-def test_middlebury_folds_student_cascade_quick(dirs):
+def _middlebury_folds_student_cascade(dirs):
     """--cascade runs the --student folds and scores the cascade beside them (one run covers both)."""
     run("middlebury_folds.py", dirs, "--cascade", "0.1,0.5")
     data = json.loads((dirs["out"] / "middlebury_folds_cascade_quick.json").read_text())
@@ -156,6 +167,13 @@ def test_middlebury_folds_student_cascade_quick(dirs):
     assert rule["chosen_q"] == (fits[0]["q"] if fits else None)
     assert rule["passes"] == bool(fits and fits[0]["seconds"] <= data["seconds"]["full_preset"] / 3)
     assert "**The rule**" in (dirs["out"] / "middlebury_folds_cascade_quick.md").read_text()
+
+
+def test_middlebury_folds_then_the_student_and_cascade_quick(dirs):
+    """The plain folds, then --cascade (the --student folds plus the cascade) on the same runs: the
+    second reuses the fold teachers the first trained."""
+    _middlebury_folds(dirs)
+    _middlebury_folds_student_cascade(dirs)
 
 
 def test_self_training_quick(dirs):
