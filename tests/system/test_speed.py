@@ -99,7 +99,7 @@ def test_fast_learned_chain_matches_exact_head_on_a_real_frame(data_root):
     from stereojax.metrics import evaluate
 
     s = load_kitti2015(data_root / "kitti2015" / "training", "000022")
-    crop = (slice(235, 375), slice(300, 800))
+    crop = (slice(235, 375), slice(500, 800))
     left, right, gt, valid = s.left[crop], s.right[crop], s.gt[crop], s.gt_valid[crop]
     model = stereojax.load_model(stereojax.models.registry.shipped_weights("kitti2015"))
     fast_cfg = stereojax.preset("learned", 96)
