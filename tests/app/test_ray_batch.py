@@ -36,37 +36,33 @@ def cluster(tmp_path_factory):
     """A one-node Ray cluster on this machine with 2 CPUs (``ray start --head``); its address.
     (On the loopback address alone, ``--node-ip-address 127.0.0.1``, this Ray version rewrites
     the address to the machine's and then cannot connect: the head binds the machine's own
-    interface here, which nothing outside reaches either.) ``ray stop`` stops every Ray process
-    of the machine, so the workers of ``pytest -n`` take turns: each holds a lock file of the
-    run while its cluster is up (a cluster stopped under the other worker's tests failed them)."""
-    import fcntl
-
-    shared = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):     # the workers' folders share this parent
-        shared = shared.parent
-    with open(shared / "ray-cluster.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            yield from _cluster()
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
-
-
-def _cluster():
+    interface here, which nothing outside reaches either.) ``ray start --block`` runs in its own
+    process group, and the cluster is stopped by ending that group: ``ray stop`` would stop every
+    Ray cluster of the machine, the one of the other ``pytest -n`` worker included."""
     import re
 
     port = _free_port()
     # a test cluster of this machine only: no token authentication (a real cluster's drivers need
     # its token, RAY_AUTH_TOKEN or ~/.ray/auth_token: docs/usage.md)
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_AUTH_MODE": "disabled"}
-    start = subprocess.run([str(RAY_BIN), "start", "--head", "--port", str(port), "--num-cpus", "2",
-                            "--include-dashboard", "false", "--disable-usage-stats"],
-                           env=env, capture_output=True, text=True, timeout=180)
-    assert start.returncode == 0, start.stdout + start.stderr
-    found = re.search(r"ray start --address='([^']+)'", start.stdout + start.stderr)
-    assert found, start.stdout + start.stderr
-    yield found.group(1)
-    subprocess.run([str(RAY_BIN), "stop", "--force"], env=env, capture_output=True, timeout=120)
+    log = tmp_path_factory.mktemp("ray") / "head.log"
+    with open(log, "w") as out:
+        head = subprocess.Popen([str(RAY_BIN), "start", "--head", "--block", "--port", str(port), "--num-cpus", "2",
+                                 "--include-dashboard", "false", "--disable-usage-stats"],
+                                env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 180
+        while not (found := re.search(r"ray start --address='([^']+)'", log.read_text())):
+            assert head.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.5)
+        yield found.group(1)
+    finally:
+        os.killpg(head.pid, signal.SIGTERM)
+        try:
+            head.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            os.killpg(head.pid, signal.SIGKILL)
+            head.wait()
 
 
 def _inputs(root: Path, n: int, h=96, w=192):
