@@ -24,7 +24,6 @@ OUT/middlebury_folds_student.{md,json}.
 fold teacher's head at the share Q of least-confident pixels; stereojax.matching_cost.cascade) at
 every Q, with the student's searched settings, and by the fold teacher with the preset settings
 (the full network's time in the same run) -> OUT/middlebury_folds_cascade.{md,json}.
-
 """
 
 import argparse
@@ -67,6 +66,22 @@ STUDENT_BAR = 4.58
 CASCADE_CANDIDATES = 16
 
 
+def cascade_shares(text: str) -> list[float]:
+    """--cascade's value: comma-separated shares q in (0, 1], checked before any fold is trained."""
+    try:
+        shares = [float(q) for q in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"takes shares like 0.05,0.1,0.2, got {text!r}") from None
+    if not all(0.0 < q <= 1.0 for q in shares):
+        raise argparse.ArgumentTypeError(f"each share q must lie in (0, 1], got {text!r}")
+    return shares
+
+
+def cascade_key(q: float) -> str:
+    """The name of the cascade at share q in the record's methods."""
+    return f"cascade {100 * q:g} %"
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--steps", type=int, default=3000)
@@ -86,7 +101,7 @@ def main():
     ap.add_argument("--border", default="neutral", choices=["replicate", "neutral"],
                     help="cost.border of the learned chain (the out-of-view strip, neutral as in the shipped cards; "
                          "replicate is written as middlebury_folds.*, the earlier record)")
-    ap.add_argument("--cascade", type=lambda v: [float(q) for q in v.split(",")], default=None,
+    ap.add_argument("--cascade", type=cascade_shares, default=None,
                     help="issue 38: also score the cascade at these shares q of re-scored pixels, e.g. "
                          "0.05,0.1,0.2,0.4 (implies --student)")
     args = ap.parse_args()
@@ -132,12 +147,13 @@ def main():
                           "train_seconds": train_s, "config": best.to_dict(), "trials": log, **dense_info})
         print(f"fold {i}: settings {changes(base_i, best) or 'preset'} ({start_err:.2f} -> {best_err:.2f} "
               "mean of > 2 / > 3 px on its training scenes)", flush=True)
-        methods = {"learned": chain_method(best, model), "learned_preset": chain_method(base_i, model)}
+        methods = {"learned": chain_method(best, model)}
         if args.cascade:        # the student with its preset settings was recorded by --student
-            del methods["learned_preset"]
-            methods.update({f"cascade {100 * q:g} %": chain_method(best, model, cascade=Cascade(
+            methods.update({cascade_key(q): chain_method(best, model, cascade=Cascade(
                 teacher, q, CASCADE_CANDIDATES).check()) for q in args.cascade})
             methods["full_preset"] = chain_method(base, teacher)
+        else:
+            methods["learned_preset"] = chain_method(base_i, model)
         methods.update({"census": chain_method(stereojax.preset("census")), "sgbm": sgbm_method(pad=True)})
         result = evaluate_frames([load(name) for name in held], methods, lambda s: search_range("middlebury", s, None))
         for r in result["frames"]:
@@ -152,7 +168,7 @@ def main():
                ("census", "census chain"), ("sgbm", "OpenCV SGBM, left-padded")]
     if args.cascade:
         methods = ([("learned", "student + fold's searched settings")]
-                   + [(f"cascade {100 * q:g} %", f"cascade q = {100 * q:g} %") for q in args.cascade]
+                   + [(cascade_key(q), f"cascade q = {100 * q:g} %") for q in args.cascade]
                    + [("full_preset", "fold teacher (full network), preset settings")] + methods[2:])
     mean = {m: {k: float(np.mean([r[m][k] for r in rows])) for k in KEYS} for m, _ in methods}
 
@@ -211,7 +227,7 @@ def cascade_title(args, cfg, mean, mean_s):
     of issue 38"): the smallest q at <= STUDENT_BAR mean > 3 px whose mean warm time is at most a
     third of the fold teacher's."""
     full_s = mean_s("full_preset")
-    rows = [{"q": q, "bad3": mean[f"cascade {100 * q:g} %"]["bad3"], "seconds": mean_s(f"cascade {100 * q:g} %")}
+    rows = [{"q": q, "bad3": mean[cascade_key(q)]["bad3"], "seconds": mean_s(cascade_key(q))}
             for q in sorted(args.cascade)]
     accurate = [r for r in rows if r["bad3"] <= STUDENT_BAR]
     chosen = accurate[0] if accurate else None

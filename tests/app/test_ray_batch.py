@@ -3,6 +3,7 @@ started by the tests): the outputs equal a local batch's bit for bit, a worker k
 retried, a killed driver resumes, an address where nothing listens is one line, and nothing
 imports ray without --ray."""
 
+import contextlib
 import json
 import os
 import signal
@@ -56,12 +57,14 @@ def cluster(tmp_path_factory):
             assert head.poll() is None and time.monotonic() < deadline, log.read_text()
             time.sleep(0.5)
         yield found.group(1)
-    finally:
-        os.killpg(head.pid, signal.SIGTERM)
+    finally:                                     # the group may be gone already (a failed start)
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(head.pid, signal.SIGTERM)
         try:
             head.wait(timeout=120)
         except subprocess.TimeoutExpired:
-            os.killpg(head.pid, signal.SIGKILL)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(head.pid, signal.SIGKILL)
             head.wait()
 
 

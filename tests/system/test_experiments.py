@@ -240,3 +240,12 @@ def test_confidence_quick(dirs):
         assert abs(curves[name][-1] - curves["oracle"][-1]) < 1e-9
     assert all(in_range(v) for v in area.values())
     assert (dirs["out"] / "figures" / "confidence_000021_quick.png").is_file()
+
+
+@pytest.mark.parametrize("value", ["0,0.2", "0.2,1.5", "abc"])
+def test_middlebury_cascade_refuses_a_bad_share_before_training(dirs, value):
+    proc = subprocess.run([sys.executable, str(ROOT / "experiments" / "middlebury_folds.py"), "--quick",
+                           "--runs", str(dirs["work"] / "bad_share"), "--cascade", value],
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert proc.returncode == 2 and "argument --cascade" in proc.stderr.strip().splitlines()[-1]
+    assert not (dirs["work"] / "bad_share").exists()      # nothing trained, nothing written
