@@ -183,11 +183,11 @@ def _matching_cost(st: State, config) -> State:
                                                     None if st.valid is None else st.valid[1])
         return st.replace(vol=vol, right_vol=right_vol, features=None, ranked=None)
     if st.offset is None:
-        vol = CostVolume.full(cost_mod.matching_cost(st.left, st.right, config.max_disp, config.cost, "left"),
-                              st.valid)
+        vol = CostVolume.full(cost_mod.matching_cost(st.left, st.right, config.max_disp, config.cost, "left",
+                                                     config.kernels), st.valid)
     else:
         vol = cost_mod.band_cost(st.left, st.right, st.offset, config.band.width, config.max_disp, config.cost,
-                                 st.valid)
+                                 st.valid, config.kernels)
     return st.replace(vol=vol)
 
 
@@ -208,7 +208,8 @@ def _neutral(st: State, config) -> State:
 def _cbca(st: State, config, iterations: int) -> State:
     if iterations == 0:
         return st
-    return st.replace(vol=aggregation.cbca_volume(st.vol, st.arms, iterations, config.cbca.arm_length))
+    return st.replace(vol=aggregation.cbca_volume(st.vol, st.arms, iterations, config.cbca.arm_length,
+                                                  config.kernels))
 
 
 def _cbca_before(st: State, config) -> State:
@@ -218,7 +219,7 @@ def _cbca_before(st: State, config) -> State:
 def _sgm(st: State, config) -> State:
     if config.sgm.directions == 0:
         return st
-    return st.replace(vol=sgm_volume(st.vol, st.left, st.right, config.sgm))
+    return st.replace(vol=sgm_volume(st.vol, st.left, st.right, config.sgm, config.kernels))
 
 
 def _cbca_after(st: State, config) -> State:
@@ -259,14 +260,14 @@ def _right_chain(st: State, config):
     left, right, valid = st.left, st.right, st.valid
     vol_r = st.right_vol
     if vol_r is None:
-        vol_r = cost_mod.matching_cost(left, right, config.max_disp, config.cost, "right")
+        vol_r = cost_mod.matching_cost(left, right, config.max_disp, config.cost, "right", config.kernels)
     w = left.shape[1]
     arms = aggregation.cross_arms(right, config.cbca.tau, config.cbca.arm_length, real_pixels(right.shape, valid))
-    c1 = aggregation.cbca(vol_r, arms, config.cbca.iterations_before, config.cbca.arm_length)
+    c1 = aggregation.cbca(vol_r, arms, config.cbca.iterations_before, config.cbca.arm_length, config.kernels)
     # mirrored (x -> W - 1 - x turns "match at x + d" into "match at x' - d"), padding on the left
     real = None if valid is None else (0, valid[0], w - valid[1], w)
-    c2 = sgm(c1[:, ::-1], right[:, ::-1], left[:, ::-1], config.sgm, real)[:, ::-1]
-    return aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length)
+    c2 = sgm(c1[:, ::-1], right[:, ::-1], left[:, ::-1], config.sgm, real, config.kernels)[:, ::-1]
+    return aggregation.cbca(c2, arms, config.cbca.iterations_after, config.cbca.arm_length, config.kernels)
 
 
 def _lr_fill(st: State, config) -> State:

@@ -222,6 +222,9 @@ class StereoConfig:
     sgm: SGMConfig = field(default_factory=SGMConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
     band: BandConfig = field(default_factory=BandConfig)
+    #: the kernels of the classical stages (stereojax.kernels): "auto" (native C++ on the CPU where
+    #: they loaded, else JAX), "native" (an error where they did not load) or "xla" (JAX everywhere)
+    kernels: str = "auto"
 
     @property
     def banded(self) -> bool:
@@ -233,6 +236,8 @@ class StereoConfig:
             raise ConfigError(f"max_disp must be a positive integer, got {self.max_disp!r}")
         for sub in (self.cost, self.cbca, self.sgm, self.refine, self.band):
             sub.validate()
+        if self.kernels not in ("auto", "native", "xla"):
+            raise ConfigError(f"kernels must be 'auto', 'native' or 'xla', got {self.kernels!r}")
         if self.banded and not self.refine.right_from_left:
             raise ConfigError("band.width > 0 needs refine.right_from_left = true (the right view of a "
                               "banded chain is read from the left volume); set band.width = 0 for the "

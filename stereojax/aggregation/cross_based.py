@@ -10,15 +10,23 @@ an integral image (cumulative sum), so a pass costs O(H W D) whatever the arm le
 The arms come from the reference image only (Zhang et al.'s cross), which keeps them
 independent of d; MC-CNN additionally intersects them with the arms of the right image at
 (x - d), which needs a per-disparity arm volume.
+
+Two kernels: the JAX kernel below (the reference, and the path on every platform other than
+the CPU) and the native C++ kernel beside it (``cross_based.cc``, an XLA FFI call); the public
+functions :func:`cbca` and :func:`cbca_volume` pick one by their ``kernels`` setting
+(:mod:`stereojax.kernels`).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from stereojax import kernels as kernels_mod
 from stereojax.volume import BIG
 
 
@@ -110,8 +118,8 @@ def support_sizes(arms: Arms) -> jax.Array:
     return _vertical_sum(_horizontal_sum(ones, left, right), up, down)
 
 
-def cbca(cost: jax.Array, arms: Arms, iterations: int, max_arm: int = 0) -> jax.Array:
-    """Cross-based aggregation of ``f32[H, W, D]`` cost, ``iterations`` passes; returns f32[H, W, D].
+def cbca_xla(cost: jax.Array, arms: Arms, iterations: int, max_arm: int = 0) -> jax.Array:
+    """The JAX kernel of :func:`cbca`. Cross-based aggregation of ``f32[H, W, D]`` cost, ``iterations`` passes; returns f32[H, W, D].
 
     max_arm: the ``arm_length`` the arms were built with (selects the summation kernel; 0 =
     unknown, use integral images).
@@ -166,8 +174,8 @@ def _band_shift_sum(values, offset, before, after, axis: int, max_arm: int, neut
     return jax.lax.fori_loop(0, 2 * max_arm + 1, body, jnp.zeros_like(values))
 
 
-def cbca_volume(vol, arms: Arms, iterations: int, max_arm: int):
-    """CBCA of a :class:`~stereojax.volume.CostVolume`; returns one with the same bands.
+def cbca_volume_xla(vol, arms: Arms, iterations: int, max_arm: int):
+    """The JAX kernel of :func:`cbca_volume`. CBCA of a :class:`~stereojax.volume.CostVolume`; returns one with the same bands.
 
     Full range: :func:`cbca`. Bands: a neighbour q is read at the same absolute disparity as p;
     where that disparity lies outside q's band, q counts with p's own value (p's cost in the
@@ -177,7 +185,7 @@ def cbca_volume(vol, arms: Arms, iterations: int, max_arm: int):
     if iterations == 0:
         return vol
     if not vol.banded:
-        return vol.with_cost(cbca(vol.cost, arms, iterations, max_arm))
+        return vol.with_cost(cbca_xla(vol.cost, arms, iterations, max_arm))
     left, right, up, down = arms
     norm = (1.0 / support_sizes(arms))[:, :, None]
     h_len = (left + right + 1).astype(jnp.float32)
@@ -190,3 +198,45 @@ def cbca_volume(vol, arms: Arms, iterations: int, max_arm: int):
 
     cost, _ = jax.lax.scan(one_pass, vol.cost, None, length=iterations)
     return vol.with_cost(cost)
+
+
+# ---- the native kernel (cross_based.cc) and the switch ---------------------------------------
+
+def cbca_native(cost: jax.Array, offset: jax.Array, arms: Arms, iterations: int, banded: bool = True) -> jax.Array:
+    """The native kernel (``cross_based.cc``): ``iterations`` CBCA passes of the band
+    ``[offset, offset + K)`` costs ``f32[H, W, K]`` (the full range: offset 0, ``banded=False``);
+    the result of :func:`cbca_volume_xla` / :func:`cbca_xla`."""
+    call = jax.ffi.ffi_call("stereojax_cbca", jax.ShapeDtypeStruct(cost.shape, jnp.float32),
+                            vmap_method="sequential")
+    return call(cost.astype(jnp.float32), offset.astype(jnp.int32), *(a.astype(jnp.int32) for a in arms),
+                iterations=np.int32(iterations), banded=np.int32(bool(banded)),
+                threads=np.int32(kernels_mod.threads()))
+
+
+def cbca(cost: jax.Array, arms: Arms, iterations: int, max_arm: int = 0, kernels: str = "auto") -> jax.Array:
+    """Cross-based aggregation of ``f32[H, W, D]`` cost, ``iterations`` passes; returns f32[H, W, D].
+
+    max_arm: the ``arm_length`` the arms were built with (selects the summation kernel of the
+    JAX kernel; 0 = unknown, use integral images). kernels: see :mod:`stereojax.kernels`.
+    """
+    if iterations == 0:
+        return cost
+
+    def native(c, a):
+        return cbca_native(c, jnp.zeros(c.shape[:2], jnp.int32), a, iterations, banded=False)
+
+    return kernels_mod.select(kernels, native, functools.partial(cbca_xla, iterations=iterations, max_arm=max_arm),
+                              cost, arms)
+
+
+def cbca_volume(vol, arms: Arms, iterations: int, max_arm: int, kernels: str = "auto"):
+    """CBCA of a :class:`~stereojax.volume.CostVolume` (see :func:`cbca_volume_xla`) with the
+    kernel of the ``kernels`` setting; returns one with the same bands."""
+    if iterations == 0:
+        return vol
+
+    def native(v, a):
+        return v.with_cost(cbca_native(v.cost, v.offset, a, iterations, v.banded))
+
+    return kernels_mod.select(kernels, native, functools.partial(cbca_volume_xla, iterations=iterations,
+                                                                 max_arm=max_arm), vol, arms)

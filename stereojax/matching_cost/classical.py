@@ -7,13 +7,22 @@ Entries whose match leaves the image (x - d < 0) are handled by ``border``:
 "replicate" compares with the right image's first column repeated (the left-padding trick
 of the KITTI SGBM baseline, so that SGM can carry disparities into the left band), "worst"
 gives them the finite sentinel ``INVALID_COST``. :func:`valid_mask` tells which they are.
+
+The census cost has two kernels after the census transform: the JAX kernel (the reference, and
+the path on every platform other than the CPU) and the native C++ kernel beside it
+(``census.cc``, an XLA FFI call); :func:`census_cost` and :func:`census_band` pick one by their
+``kernels`` setting (:mod:`stereojax.kernels`).
 """
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from stereojax import kernels as kernels_mod
 from stereojax.volume import CostVolume, band_from_full, windows
 
 INVALID_COST = 1.0
@@ -109,9 +118,9 @@ def _apply_border(cost, max_disp, view, border):
     return jnp.where(valid_mask(cost.shape[1], max_disp, view)[None], cost, INVALID_COST)
 
 
-def census_cost(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4), view: str = "left",
-                border: str = "replicate"):
-    """Census cost volume ``f32[H, W, D]`` in [0, 1] (fraction of differing bits) for one view.
+def census_cost_xla(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4), view: str = "left",
+                    border: str = "replicate"):
+    """The JAX kernel of :func:`census_cost`. Census cost volume ``f32[H, W, D]`` in [0, 1] (fraction of differing bits) for one view.
 
     left, right: ``f32[H, W]`` grey images. Returns the volume with invalid entries set to
     ``INVALID_COST``.
@@ -128,6 +137,48 @@ def census_cost(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4),
     # the shifted u32[H, W, D, K] stack first would cost twice the volume's memory)
     cost = jnp.stack([hamming(s) for s in _shifted_slices(other, max_disp, view)], axis=-1)
     return _apply_border(cost, max_disp, view, border)
+
+
+def census_native(cl: jax.Array, cr: jax.Array, offset: jax.Array, k: int, radius, border: str) -> jax.Array:
+    """The native kernel (``census.cc``): the left view's census cost ``f32[H, W, K]`` of the
+    census words ``u32[H, W, words]`` of both images in the bands ``[offset, offset + k)`` (the
+    full range: offset 0, k = D)."""
+    h, w = offset.shape
+    call = jax.ffi.ffi_call("stereojax_census", jax.ShapeDtypeStruct((h, w, k), jnp.float32),
+                            vmap_method="sequential")
+    return call(cl, cr, offset.astype(jnp.int32), worst=np.int32(border == "worst"),
+                scale=np.float32(1.0 / census_bits(radius)), threads=np.int32(kernels_mod.threads()))
+
+
+def _census_cost_native(left, right, max_disp, radius, view, border):
+    cl, cr = census_transform(left, radius), census_transform(right, radius)
+    zeros = jnp.zeros(left.shape, jnp.int32)
+    if view == "left":
+        return census_native(cl, cr, zeros, max_disp, radius, border)
+    # the right view is the left view of the mirrored pair (Hamming distances do not depend on
+    # the order of the bits, and the mirrored border repeats column W - 1 as the JAX kernel does)
+    return census_native(cr[:, ::-1], cl[:, ::-1], zeros, max_disp, radius, border)[:, ::-1]
+
+
+def census_cost(left: jax.Array, right: jax.Array, max_disp: int, radius=(3, 4), view: str = "left",
+                border: str = "replicate", kernels: str = "auto"):
+    """Census cost volume ``f32[H, W, D]`` in [0, 1] (fraction of differing bits) for one view
+    (:func:`census_cost_xla`), with the kernel of the ``kernels`` setting."""
+    native = functools.partial(_census_cost_native, max_disp=max_disp, radius=radius, view=view, border=border)
+    xla = functools.partial(census_cost_xla, max_disp=max_disp, radius=radius, view=view, border=border)
+    return kernels_mod.select(kernels, native, xla, left, right)
+
+
+def census_band(left: jax.Array, right: jax.Array, offset: jax.Array, k: int, max_disp: int,
+                radius=(3, 4), border: str = "replicate", valid=None, kernels: str = "auto"):
+    """Census cost of the left view at each pixel's band ``[offset, offset + k)`` (see
+    :func:`census_band_xla`), with the kernel of the ``kernels`` setting."""
+    def native(l, r, off):
+        cost = census_native(census_transform(l, radius), census_transform(r, radius), off, k, radius, border)
+        return CostVolume.band(cost, off, max_disp, valid)
+
+    xla = functools.partial(census_band_xla, k=k, max_disp=max_disp, radius=radius, border=border, valid=valid)
+    return kernels_mod.select(kernels, native, xla, left, right, offset)
 
 
 # ---- SAD ------------------------------------------------------------------------------------
@@ -155,10 +206,11 @@ def sad_cost(left: jax.Array, right: jax.Array, max_disp: int, radius: int = 2, 
     return _apply_border(jnp.stack(slices, axis=-1), max_disp, view, border)
 
 
-def matching_cost(left: jax.Array, right: jax.Array, max_disp: int, cfg, view: str = "left") -> jax.Array:
+def matching_cost(left: jax.Array, right: jax.Array, max_disp: int, cfg, view: str = "left",
+                  kernels: str = "auto") -> jax.Array:
     """Dispatch on ``cfg.method`` (a :class:`stereojax.config.CostConfig`)."""
     if cfg.method == "census":
-        return census_cost(left, right, max_disp, cfg.census_radius, view, cfg.border)
+        return census_cost(left, right, max_disp, cfg.census_radius, view, cfg.border, kernels)
     if cfg.method == "sad":
         return sad_cost(left, right, max_disp, cfg.sad_radius, view, cfg.border)
     raise ValueError(f"unknown cost method {cfg.method!r}")
@@ -166,9 +218,9 @@ def matching_cost(left: jax.Array, right: jax.Array, max_disp: int, cfg, view: s
 
 # ---- per-pixel disparity bands (stereojax.volume.CostVolume) ---------------------------------
 
-def census_band(left: jax.Array, right: jax.Array, offset: jax.Array, k: int, max_disp: int,
-                radius=(3, 4), border: str = "replicate", valid=None):
-    """Census cost of the left view at each pixel's band ``[offset, offset + k)``: a
+def census_band_xla(left: jax.Array, right: jax.Array, offset: jax.Array, k: int, max_disp: int,
+                    radius=(3, 4), border: str = "replicate", valid=None):
+    """The JAX kernel of :func:`census_band`. Census cost of the left view at each pixel's band ``[offset, offset + k)``: a
     :class:`~stereojax.volume.CostVolume` whose entries equal those of :func:`census_cost`
     there (right columns left of the image repeat column 0; ``border="worst"``: INVALID_COST)."""
 
@@ -193,14 +245,14 @@ def census_band(left: jax.Array, right: jax.Array, offset: jax.Array, k: int, ma
 
 
 def band_cost(left: jax.Array, right: jax.Array, offset: jax.Array, k: int, max_disp: int, cfg,
-              valid=None):
+              valid=None, kernels: str = "auto"):
     """The classical cost of ``cfg`` (a CostConfig) in the bands: census directly
     (:func:`census_band`); SAD from its full volume (its window would need every pixel's own
     disparities), then cut to the bands."""
     if cfg.method == "census":
-        return census_band(left, right, offset, k, max_disp, cfg.census_radius, cfg.border, valid)
+        return census_band(left, right, offset, k, max_disp, cfg.census_radius, cfg.border, valid, kernels)
 
-    return band_from_full(matching_cost(left, right, max_disp, cfg, "left"), offset, k, valid)
+    return band_from_full(matching_cost(left, right, max_disp, cfg, "left", kernels), offset, k, valid)
 
 
 def neutral_border_volume(vol, share: float = NEUTRAL_SHARE):

@@ -17,13 +17,22 @@ Adaptive penalties (MC-CNN): with D1 = |I_L(p) - I_L(p - r)| and D2 = |I_R(p - d
 I_R(p - d - r)|, both below ``grad_threshold``: P1, P2; one above: P1/q1, P2/q1; both above:
 P1/q2, P2/q2. On diagonal paths only D1 is used. ``vertical_factor`` divides P1 on vertical
 paths. Right-image columns left of the image (x - d < 0) repeat column 0, as the cost does.
+
+Two kernels: the JAX kernel below (the reference, and the path on every platform other than
+the CPU) and the native C++ kernel beside it (``semi_global.cc``, an XLA FFI call); the public
+functions :func:`sgm` and :func:`sgm_volume` pick one by their ``kernels`` setting
+(:mod:`stereojax.kernels`).
 """
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from stereojax import kernels as kernels_mod
 from stereojax.volume import BIG as _BIG, real_bounds, windows
 
 
@@ -126,8 +135,8 @@ def _column_path(cost, total, big_left, big_right, cfg, dx, real=None):
     return jax.lax.fori_loop(0, c1 - c0, body, (init, total))[1]
 
 
-def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, real=None) -> jax.Array:
-    """Semi-global matching of the left-view cost ``f32[H, W, D]``; returns ``f32[H, W, D]``.
+def sgm_xla(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, real=None) -> jax.Array:
+    """The JAX kernel of :func:`sgm`. Semi-global matching of the left-view cost ``f32[H, W, D]``; returns ``f32[H, W, D]``.
 
     left, right: ``f32[H, W]`` grey images (for the adaptive penalties). cfg: SGMConfig.
     real: (first row, end row, first column, end column) of the real pixels of a pair padded to
@@ -293,8 +302,8 @@ def _band_column_sweep(vol, total, specs, cfg, real=None):
     return sum(totals)
 
 
-def sgm_volume(vol, left: jax.Array, right: jax.Array, cfg):
-    """SGM of a :class:`~stereojax.volume.CostVolume` (left view); returns one with the same bands.
+def sgm_volume_xla(vol, left: jax.Array, right: jax.Array, cfg):
+    """The JAX kernel of :func:`sgm_volume`. SGM of a :class:`~stereojax.volume.CostVolume` (left view); returns one with the same bands.
 
     Full range: :func:`sgm`. Bands: see the comment above :func:`_band_step`; a band covering
     the whole range gives :func:`sgm`. The paths run over the volume's real pixels only.
@@ -303,7 +312,7 @@ def sgm_volume(vol, left: jax.Array, right: jax.Array, cfg):
         return vol
     real = real_bounds(vol.valid)
     if not vol.banded:
-        return vol.with_cost(sgm(vol.cost, left, right, cfg, real))
+        return vol.with_cost(sgm_xla(vol.cost, left, right, cfg, real))
     thr = cfg.grad_threshold
 
     def right_big(dy, dx):   # in the layout of _match_lines
@@ -318,3 +327,68 @@ def sgm_volume(vol, left: jax.Array, right: jax.Array, cfg):
                  for dy, dx in ((1, 1), (1, -1), (-1, 1), (-1, -1))]
     total = _band_row_sweep(vol, total, rows, cfg, real)
     return vol.with_cost(total / cfg.directions)
+
+
+# ---- the native kernel (semi_global.cc) and the switch ----------------------------------------
+
+def penalty_table(cfg) -> np.ndarray:
+    """``f32[18]``: P1 (3) then P2 (3) by the number of large grey-level steps (0, 1, 2), for the
+    horizontal, vertical and diagonal paths, computed as :func:`_penalties` computes them."""
+    rows = []
+    for scale in (1.0, cfg.vertical_factor, 1.0):
+        p1, p2 = np.float32(cfg.p1 / scale), np.float32(cfg.p2)
+        div = np.array([1.0, cfg.q1, cfg.q2] if cfg.adaptive else [1.0, 1.0, 1.0], np.float32)
+        rows += [p1 / div, p2 / div] if cfg.adaptive else [np.full(3, p1, np.float32), np.full(3, p2, np.float32)]
+    return np.concatenate(rows).astype(np.float32)
+
+
+def _bounds(shape, real) -> jax.Array:
+    h, w = shape
+    if real is None:
+        return jnp.array([0, h, 0, w], jnp.int32)
+    return jnp.stack([jnp.asarray(r, jnp.int32) for r in real])
+
+
+def sgm_native(cost, offset, left, right, cfg, real=None, max_disp=None, banded=True) -> jax.Array:
+    """The native kernel (``semi_global.cc``): SGM of the band ``[offset, offset + K)`` costs
+    ``f32[H, W, K]`` (the full range: offset 0, K = D, ``banded=False``); the result of
+    :func:`sgm_volume_xla` / :func:`sgm_xla`."""
+    h, w, k = cost.shape
+    call = jax.ffi.ffi_call("stereojax_sgm", jax.ShapeDtypeStruct(cost.shape, jnp.float32),
+                            vmap_method="sequential")
+    return call(cost.astype(jnp.float32), offset.astype(jnp.int32), left.astype(jnp.float32),
+                right.astype(jnp.float32), _bounds((h, w), real),
+                directions=np.int32(cfg.directions), max_disp=np.int32(max_disp or k),
+                banded=np.int32(bool(banded)), adaptive=np.int32(bool(cfg.adaptive)),
+                threshold=np.float32(cfg.grad_threshold), penalties=penalty_table(cfg),
+                threads=np.int32(min(kernels_mod.threads(), 2)))
+
+
+def sgm(cost: jax.Array, left: jax.Array, right: jax.Array, cfg, real=None, kernels: str = "auto") -> jax.Array:
+    """Semi-global matching of the left-view cost ``f32[H, W, D]``; returns ``f32[H, W, D]``.
+
+    left, right: ``f32[H, W]`` grey images (for the adaptive penalties). cfg: SGMConfig.
+    real: (first row, end row, first column, end column) of the real pixels of a pair padded to
+    a size bucket (traced integers; None: all real); the paths run over them only, so they get
+    exactly the result of the unpadded pair (the padding keeps 0). kernels: see
+    :mod:`stereojax.kernels`.
+    """
+    if cfg.directions == 0:
+        return cost
+
+    def native(c, l, r):
+        return sgm_native(c, jnp.zeros(c.shape[:2], jnp.int32), l, r, cfg, real, banded=False)
+
+    return kernels_mod.select(kernels, native, functools.partial(sgm_xla, cfg=cfg, real=real), cost, left, right)
+
+
+def sgm_volume(vol, left: jax.Array, right: jax.Array, cfg, kernels: str = "auto"):
+    """SGM of a :class:`~stereojax.volume.CostVolume` (left view); returns one with the same
+    bands (see :func:`sgm_volume_xla`), with the kernel of the ``kernels`` setting."""
+    if cfg.directions == 0:
+        return vol
+
+    def native(v, l, r):
+        return v.with_cost(sgm_native(v.cost, v.offset, l, r, cfg, real_bounds(v.valid), v.max_disp, v.banded))
+
+    return kernels_mod.select(kernels, native, functools.partial(sgm_volume_xla, cfg=cfg), vol, left, right)
