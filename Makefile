@@ -28,7 +28,10 @@ EXP      := $(PY) experiments
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
 
-$(STAMP): pyproject.toml
+# the native kernels (C++, built by setup.py): a changed source rebuilds them on the next make test/install
+NATIVE_SRC := setup.py $(wildcard stereojax/*.h stereojax/*/*.h stereojax/*/*.cc)
+
+$(STAMP): pyproject.toml $(NATIVE_SRC)
 	$(PYTHON) -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip
 	$(VENV)/bin/pip install -q -e ".[test,experiments]"

@@ -15,6 +15,38 @@ TEST_XLA_FLAGS = "--xla_cpu_use_fusion_emitters=false"
 if not os.environ.get("STEREOJAX_TEST_DEFAULT_XLA") and TEST_XLA_FLAGS not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {TEST_XLA_FLAGS}".strip()
 
+
+def pytest_sessionstart(session):
+    """The suite fails at once on a CPU where the native kernels (stereojax.kernels) did not load:
+    it would otherwise test the JAX kernels only, and say nothing. ``STEREOJAX_NATIVE_SKIP=1`` runs
+    it anyway (the build was skipped on purpose). Checked once, in the process that starts the run
+    (not in pytest -n's workers), and not for ``--collect-only``."""
+    if (session.config.option.collectonly or os.environ.get("PYTEST_XDIST_WORKER")
+            or os.environ.get("STEREOJAX_NATIVE_SKIP") == "1"):
+        return
+    from stereojax import kernels
+
+    st = kernels.status()
+    if st.loaded or _backend() != "cpu":
+        return
+    pytest.exit(f"the native kernels did not load ({st.reason}); build them (make install, or pip install -e .) "
+                "or set STEREOJAX_NATIVE_SKIP=1 to test the JAX kernels only", returncode=1)
+
+
+def _backend() -> str:
+    """JAX's default backend, asked in a child process: this process starts no backend (on a GPU it
+    would hold memory that the test workers need)."""
+    import subprocess
+    import sys
+
+    try:
+        out = subprocess.run([sys.executable, "-c", "import jax; print(jax.default_backend())"],
+                             capture_output=True, text=True, timeout=120, check=True)
+    except (subprocess.SubprocessError, OSError):
+        return "cpu"
+    return out.stdout.strip().splitlines()[-1] if out.stdout.strip() else "cpu"
+
+
 #: ../shared/data from the project root (see /work/shared/data/README.md); never copied into the repo.
 DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -59,3 +59,20 @@ def test_numpy_integer_max_disp_is_accepted():
     assert StereoConfig().with_max_disp(np.int32(32)).max_disp == 32
     with pytest.raises(ConfigError):
         preset("census", 16.0)
+
+
+def test_kernels_setting_is_checked():
+    assert StereoConfig().kernels == "auto"
+    for bad in ({"kernels": "bogus"}, {"kernels": "XLA"}):
+        with pytest.raises(ConfigError, match="kernels must be"):
+            StereoConfig.from_dict(bad)
+    with pytest.raises(ConfigError, match="kernels must be"):
+        StereoConfig(kernels="bogus").validate()
+    # the Predictor's kernels= replaces the config's; each setting is its own compiled program
+    from stereojax.inference.predictor import Predictor
+
+    with pytest.raises(ConfigError, match="kernels must be"):
+        Predictor(preset("census", 16), kernels="bogus")
+    xla = Predictor(preset("census", 16), kernels="xla")
+    assert xla.config.kernels == "xla" and Predictor(xla.config).config.kernels == "xla"
+    assert xla._key(48, 80) != Predictor(preset("census", 16))._key(48, 80)

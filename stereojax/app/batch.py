@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from stereojax import kernels as kernels_mod
 from stereojax.app.integrity import damaged, file_entries
 from stereojax.app.outputs import (blank_unconfident, folder_lock, output_folder, pid_alive,
                                    write_confidence, write_prediction)
@@ -86,7 +87,7 @@ def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: f
 
 
 #: what frame.json holds beside the record of what made the frame
-_RESULT_KEYS = ("outputs", "files", "timings", "size", "disp_range_used", "warnings")
+_RESULT_KEYS = ("outputs", "files", "timings", "size", "disp_range_used", "warnings", "kernels")
 
 
 def frame_problem(target: Path, record: dict, verify: bool = False) -> str | None:
@@ -177,10 +178,11 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
     if calib is not None:
         _check_depth(disp, calib)
     timings = {**timings, "warnings": list(warned)}
+    ran = kernels_mod.record(cfg.kernels)           # which kernels ran in this process, and why
     write_json(target / "config.json", cfg.to_dict())
     write_json(target / "timings.json", {**timings, "height": disp.shape[0], "width": disp.shape[1],
                                          "max_disp": cfg.max_disp, "method": cfg.cost.method,
-                                         "chosen": run.description})
+                                         "chosen": run.description, "kernels": ran})
     written += ["config.json", "timings.json"]
     if record:
         write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence,
@@ -188,7 +190,7 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
                                        "disp_range_used": None if used is None else list(used),
                                        "size": list(disp.shape), "outputs": written,
                                        "files": file_entries(target, written), "timings": timings,
-                                       "warnings": list(warned)})
+                                       "warnings": list(warned), "kernels": ran})
     return {"disparity": disp, "confidence": conf, "timings": timings, "written": written, "run": run,
             "warnings": list(warned)}
 

@@ -15,6 +15,7 @@ import warnings
 from pathlib import Path
 from typing import Sequence
 
+from stereojax import kernels as kernels_mod
 from stereojax.app.batch import pair_line, predict_batch, predict_pair, summary_line
 from stereojax.app.bench import run_bench
 from stereojax.app.demo import run_demo
@@ -46,9 +47,33 @@ def _resolve(args, width: int = 0, height: int = 0, dataset: str | None = None, 
     config = StereoConfig.from_file(args.config) if getattr(args, "config", None) else None
     if max_disp is None:
         max_disp = config.max_disp if config is not None else DEFAULT_MAX_DISP
-    return resolve(args.method, getattr(args, "weights", None), config, width, height, dataset,
-                   max_disp, getattr(args, "exact_head", False), getattr(args, "scene", "auto"),
-                   getattr(args, "cascade", None), getattr(args, "cascade_weights", None))
+    run = resolve(args.method, getattr(args, "weights", None), config, width, height, dataset,
+                  max_disp, getattr(args, "exact_head", False), getattr(args, "scene", "auto"),
+                  getattr(args, "cascade", None), getattr(args, "cascade_weights", None))
+    if getattr(args, "kernels", None):        # --kernels wins over a --config file's kernels
+        run = dataclasses.replace(run, config=dataclasses.replace(run.config, kernels=args.kernels).validate())
+    return run
+
+
+def _kernels_setting(args) -> str:
+    """The ``kernels`` setting of the command line: ``--kernels``, else a ``--config`` file's, else auto."""
+    if getattr(args, "kernels", None):
+        return args.kernels
+    if getattr(args, "config", None):
+        return StereoConfig.from_file(args.config).kernels
+    return "auto"
+
+
+def _kernels_lines(args) -> tuple[str | None, str | None]:
+    """(the line printed first, the line printed right after the command's first line): the kernels
+    that run, in words (:func:`stereojax.kernels.describe`). ``auto`` without the native library:
+    the first line says that the chain runs the JAX kernels, and why. ``--kernels native`` without
+    it: :class:`~stereojax.errors.ConfigError`."""
+    setting = _kernels_setting(args)
+    line = f"stereojax: kernels: {kernels_mod.describe(setting)}"
+    if setting == "auto" and not kernels_mod.status().loaded:
+        return line, None
+    return None, line
 
 
 def _calibration(args, show: bool = True):
@@ -100,6 +125,9 @@ def _disp_range_arg(values):
 # ---- commands ----------------------------------------------------------------------------------
 
 def cmd_predict(args) -> int:
+    first, after = _kernels_lines(args)
+    if first:
+        print(first, flush=True)
     pairs, batch = find_pairs(args.inputs, args.pairs)
     if args.ray and batch:       # before JAX starts its threads: a local cluster forks its processes
         connect(args.ray)
@@ -115,10 +143,10 @@ def cmd_predict(args) -> int:
     enable()
     # a batch takes the folder's lock first: a refused second batch says nothing else
     with folder_lock(out, "predict") if batch else contextlib.nullcontext():
-        return _predict(args, pairs, batch, out, devices, calib, calib_line)
+        return _predict(args, pairs, batch, out, devices, calib, calib_line, after)
 
 
-def _predict(args, pairs, batch, out, devices, calib, calib_line) -> int:
+def _predict(args, pairs, batch, out, devices, calib, calib_line, kernels_line=None) -> int:
     opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified,
                 tile=args.tile, disp_range=_disp_range_arg(args.disp_range), max_depth=args.max_depth)
     resolve = lambda w, h: _resolve(args, w, h)  # noqa: E731
@@ -128,6 +156,8 @@ def _predict(args, pairs, batch, out, devices, calib, calib_line) -> int:
         run = resolve(*size)
         announced = run.description
         print(f"stereojax: method: {run.chosen_line}", flush=True)
+    if kernels_line:                               # right after it: the kernels
+        print(kernels_line, flush=True)
     for line in (_max_disp_note(args), calib_line):
         if line:
             print(f"stereojax: {line}", flush=True)
@@ -159,12 +189,17 @@ def _predict(args, pairs, batch, out, devices, calib, calib_line) -> int:
 
 
 def cmd_evaluate(args) -> int:
+    first, after = _kernels_lines(args)
+    if first:
+        print(first, flush=True)
     out = output_folder(args.out)
     enable()
     items = load_dataset(args.data, args.dataset, frames=parse_frames(args.frames),
                          gt="occ" if args.gt == "both" else args.gt)
     run = _resolve(args, 0, 0, args.dataset)
     print(f"stereojax: method: {run.chosen_line}", flush=True)
+    if after:
+        print(after, flush=True)
     evaluate_dataset(items, args.dataset, run, out, gt=args.gt, fill=args.fill, max_disp=args.max_disp,
                      sgbm=args.sgbm, devices=local_devices(args.devices), overwrite=args.overwrite,
                      verify=args.verify)
@@ -172,11 +207,15 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_demo(args) -> int:
+    first, after = _kernels_lines(args)
+    if first:
+        print(first, flush=True)
     out = output_folder(args.out)
     enable()
     sample = load_builtin_sample()
     max_disp = args.max_disp or int(sample.max_disp_hint or 70)
-    run_demo(sample, _resolve(args, sample.left.shape[1], sample.left.shape[0], "middlebury", max_disp), out)
+    run_demo(sample, _resolve(args, sample.left.shape[1], sample.left.shape[0], "middlebury", max_disp), out,
+             kernels_line=after)
     return 0
 
 

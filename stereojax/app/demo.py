@@ -16,13 +16,16 @@ from stereojax.inference.predictor import Predictor
 from stereojax.progress import Phases
 
 
-def run_demo(sample, run, out: Path) -> dict:
+def run_demo(sample, run, out: Path, kernels_line: str | None = None) -> dict:
     """Disparity, depth, point cloud and error map of ``sample`` (with ground truth and
     calibration) by ``run`` (:class:`stereojax.models.registry.Resolved`, its max_disp the sample's),
-    written into ``out``, each step shown on stdout. Returns the frame's scores."""
+    written into ``out``, each step shown on stdout (``kernels_line``, the kernels in words, right
+    after the first line). Returns the frame's scores."""
     max_disp = run.config.max_disp
     print(f"built-in sample: {sample.name} {sample.left.shape[1]}x{sample.left.shape[0]}, "
           f"{max_disp} disparities, {run.chosen_line}")
+    if kernels_line:
+        print(kernels_line)
     phases = Phases()
     phases.start("loading the model" if run.method == "learned" else "preparing")
     model = run.model()

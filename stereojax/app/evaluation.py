@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from stereojax import metrics
+from stereojax import kernels as kernels_mod, metrics
 from stereojax.app.baselines import sgbm_disparity
 from stereojax.app.batch import frame_key_of_run
 from stereojax.app.integrity import damaged, file_entries
@@ -292,7 +292,8 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
         print(f"warning: {msg}; skipped", file=sys.stderr)
     results = {"dataset": dataset, "gt": gt, "fill": fill, "frames": per_frame, "mean": result["mean"],
                "reused": result["reused"],
-               "config": run.with_max_disp(per_frame[0]["max_disp"]).config.to_dict()}
+               "config": run.with_max_disp(per_frame[0]["max_disp"]).config.to_dict(),
+               "kernels": kernels_mod.record(run.config.kernels)}
     io.write_json(out / "results.json", results)
     table = format_table(result["mean"], run.label)
     with io.atomic_output(out / "results.md") as tmp:

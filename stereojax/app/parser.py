@@ -76,6 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "model for road frames (KITTI 2015) or indoor scenes (Middlebury); auto (default): road "
                         "when the frame is at least 2.5 times as wide as high, or by --dataset")
 
+    def add_kernels(sp):
+        sp.add_argument("--kernels", choices=["auto", "native", "xla"], help="the kernels of SGM, CBCA and the "
+                        "census cost: native (the C++ kernels on the CPU, an error where they did not load), xla "
+                        "(the JAX kernels) or auto (default, or a --config file's kernels: native where they "
+                        "loaded, else JAX, said on the first line)")
+
     def add_devices(sp):
         sp.add_argument("--devices", type=int, help="spread the frames over this many local devices, "
                         "one frame per device at a time (default: all; the results equal one device's)")
@@ -124,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "GPU, else one per 2 CPUs of the cluster)")
     add_devices(sp)
     add_method(sp)
+    add_kernels(sp)
 
     sp = sub.add_parser("evaluate", help="score the pipeline on KITTI 2012/2015 or Middlebury")
     sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data/kitti2015/training)")
@@ -143,11 +150,13 @@ def build_parser() -> argparse.ArgumentParser:
                     "(default: their sizes are checked)")
     add_devices(sp)
     add_method(sp)
+    add_kernels(sp)
 
     sp = sub.add_parser("demo", help="run the built-in Middlebury Motorcycle pair and print its errors")
     sp.add_argument("--out", default="out/demo")
     sp.add_argument("--max-disp", type=int, help="default: the sample's disparity range")
     add_method(sp)
+    add_kernels(sp)
 
     sp = sub.add_parser("train", help="train the matching network on patch pairs (CPU)")
     sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data)")

@@ -10,13 +10,14 @@ bucket (:mod:`stereojax.inference.programs`), tiles a frame too large for memory
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stereojax import chain as chain_mod
+from stereojax import chain as chain_mod, kernels as kernels_mod
 from stereojax.config import StereoConfig, preset
 from stereojax.errors import ConfigError
 from stereojax.inference import reporting, tiling
@@ -47,13 +48,18 @@ class Predictor:
     (:func:`stereojax.validation.confidence_measure.confidence`). The model's variables are put on the device once,
     here, and passed to every run. ``cascade``: a :class:`~stereojax.matching_cost.cascade.Cascade`,
     the full network's cost where this (student) model is least sure
-    (:mod:`stereojax.matching_cost.cascade`).
+    (:mod:`stereojax.matching_cost.cascade`). ``kernels``: "auto", "native" or "xla", the kernels of
+    the classical stages (:mod:`stereojax.kernels`), replacing ``config.kernels``; None keeps the config's.
     """
 
     def __init__(self, config: StereoConfig | None = None, model=None, device=None, memory_limit_gb=None,
-                 confidence: bool = False, tile: str = "off", disp_range=None, cascade: Cascade | None = None):
+                 confidence: bool = False, tile: str = "off", disp_range=None, cascade: Cascade | None = None,
+                 kernels: str | None = None):
         self.disp_range = check_disp_range(disp_range)
         config = (config or preset("census")).validate()
+        if kernels is not None:
+            config = dataclasses.replace(config, kernels=kernels).validate()
+        kernels_mod.native(config.kernels)   # "native" without the library: ConfigError here, not at the first call
         if self.disp_range is not None:      # MIN <= d < MAX: the chain runs over MAX - MIN disparities
             config = config.with_max_disp(self.disp_range[1] - self.disp_range[0])
         self.config = config
