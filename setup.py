@@ -17,6 +17,7 @@ SOURCES = [
     "stereojax/optimization/semi_global.cc",
     "stereojax/aggregation/cross_based.cc",
     "stereojax/matching_cost/census.cc",
+    "stereojax/disparity/right_view.cc",
 ]
 
 

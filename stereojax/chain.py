@@ -250,7 +250,8 @@ def _right_view(st: State, config) -> State:
         right_offset = st.right_offset
         if right_offset is None:
             right_offset = jnp.zeros(st.vol.shape, jnp.int32)
-        return st.replace(disp_right=right_view.right_wta(st.vol, right_offset, cost_mod.INVALID_COST))
+        return st.replace(disp_right=right_view.right_wta(st.vol, right_offset, cost_mod.INVALID_COST,
+                                                          config.kernels))
     # full range only (config.validate): the right view aggregated on its own
     return st.replace(disp_right=winner_takes_all.wta(_right_chain(st, config)), right_vol=None)
 

@@ -7,8 +7,8 @@
 // outside q's band, q counts with p's own value (horizontal: p's cost; vertical: p's horizontal
 // mean times q's horizontal arm count). The full range is off = 0, where no entry is outside.
 // The terms are added in the order of the JAX kernel (arm offsets ascending), so the two agree
-// to the last bit. Both sums run over rows on all threads; the horizontal sums go to one scratch
-// volume allocated once per call.
+// to the last bit. Rows run on all threads; each thread keeps the horizontal sums of the rows
+// its vertical sums read in a ring of 2 arm + 1 rows (no volume-sized scratch).
 #include <algorithm>
 #include <cstring>
 #include <vector>
@@ -25,6 +25,10 @@ struct Arms {
 SJ_INLINE void add_band(float* __restrict acc, const float* __restrict v, const float* __restrict nu, int k,
                         int sh) {
   // acc[j] += v[j + sh] where 0 <= j + sh < k, else nu[j]
+  if (sh == 0) {
+    for (int j = 0; j < k; ++j) acc[j] += v[j];
+    return;
+  }
   const int lo = std::min(k, std::max(0, -sh)), hi = std::max(lo, std::min(k, k - sh));
   for (int j = 0; j < lo; ++j) acc[j] += nu[j];
   const float* __restrict vs = v + sh;
@@ -34,6 +38,10 @@ SJ_INLINE void add_band(float* __restrict acc, const float* __restrict v, const 
 
 SJ_INLINE void add_band_weighted(float* __restrict acc, const float* __restrict v, const float* __restrict nu,
                                  float wq, int k, int sh) {
+  if (sh == 0) {
+    for (int j = 0; j < k; ++j) acc[j] += v[j];
+    return;
+  }
   const int lo = std::min(k, std::max(0, -sh)), hi = std::max(lo, std::min(k, k - sh));
   for (int j = 0; j < lo; ++j) acc[j] += nu[j] * wq;
   const float* __restrict vs = v + sh;
@@ -41,46 +49,63 @@ SJ_INLINE void add_band_weighted(float* __restrict acc, const float* __restrict 
   for (int j = hi; j < k; ++j) acc[j] += nu[j] * wq;
 }
 
-SJ_CLONES void horizontal_rows(const float* src, float* dst, const int32_t* off, Arms a, int w, int k, bool banded,
-                               int y0, int y1) {
-  std::vector<float> acc(k);
-  for (int y = y0; y < y1; ++y) {
-    for (int x = 0; x < w; ++x) {
-      const size_t p = static_cast<size_t>(y) * w + x;
-      const float* nu = src + p * k;
-      std::fill(acc.begin(), acc.end(), 0.f);
-      const int op = off[p];
-      for (int q = x - a.left[p]; q <= x + a.right[p]; ++q) {
-        const size_t pq = static_cast<size_t>(y) * w + q;
-        const int sh = banded ? op - off[pq] : 0;
-        add_band(acc.data(), src + pq * k, nu, k, sh);
-      }
-      std::memcpy(dst + p * k, acc.data(), k * sizeof(float));
+struct Pass {
+  const float* src;
+  float* dst;
+  const int32_t* off;
+  Arms a;
+  int h, w, k, reach;  // reach: the longest vertical arm
+  bool banded;
+};
+
+// The horizontal sums of row y into hrow [W, K].
+SJ_INLINE void horizontal_row(const Pass& ps, int y, float* __restrict hrow) {
+  const int w = ps.w, k = ps.k;
+  for (int x = 0; x < w; ++x) {
+    const size_t p = static_cast<size_t>(y) * w + x;
+    const float* nu = ps.src + p * k;
+    float* __restrict acc = hrow + static_cast<size_t>(x) * k;
+    for (int j = 0; j < k; ++j) acc[j] = 0.f;
+    const int op = ps.off[p];
+    // the arms of padding pixels (grey BIG) may run past the image: read inside it only
+    const int q0 = std::max(0, x - ps.a.left[p]), q1 = std::min(w - 1, x + ps.a.right[p]);
+    for (int q = q0; q <= q1; ++q) {
+      const size_t pq = static_cast<size_t>(y) * w + q;
+      add_band(acc, ps.src + pq * k, nu, k, ps.banded ? op - ps.off[pq] : 0);
     }
   }
 }
 
-SJ_CLONES void vertical_rows(const float* hs, float* dst, const int32_t* off, Arms a, int w, int k, bool banded,
-                             int y0, int y1) {
+// Rows [y0, y1): the horizontal sums of rows y0 - reach .. y1 + reach go through a ring of
+// 2 reach + 1 rows (this thread's own), the vertical sums of each row read it.
+SJ_CLONES void cbca_rows(const Pass& ps, int y0, int y1) {
+  const int w = ps.w, k = ps.k, span = 2 * ps.reach + 1;
+  const size_t row_len = static_cast<size_t>(w) * k;
+  std::vector<float> ring(row_len * span);
   std::vector<float> acc(k), nrm(k);
+  auto slot = [&](int row) { return ring.data() + static_cast<size_t>(row % span) * row_len; };
+  int next = std::max(0, y0 - ps.reach);  // the next row whose horizontal sums are due
   for (int y = y0; y < y1; ++y) {
+    const int need = std::min(ps.h, y + ps.reach + 1);
+    for (; next < need; ++next) horizontal_row(ps, next, slot(next));
     for (int x = 0; x < w; ++x) {
       const size_t p = static_cast<size_t>(y) * w + x;
-      const float* hp = hs + p * k;
-      const float hl = static_cast<float>(a.left[p] + a.right[p] + 1);
+      const float* hp = slot(y) + static_cast<size_t>(x) * k;
+      const float hl = static_cast<float>(ps.a.left[p] + ps.a.right[p] + 1);
       for (int j = 0; j < k; ++j) nrm[j] = hp[j] / hl;
-      std::fill(acc.begin(), acc.end(), 0.f);
-      const int op = off[p];
+      for (int j = 0; j < k; ++j) acc[j] = 0.f;
+      const int op = ps.off[p];
       float support = 0.f;
-      for (int q = y - a.up[p]; q <= y + a.down[p]; ++q) {
+      const int q0 = std::max(0, y - ps.a.up[p]), q1 = std::min(ps.h - 1, y + ps.a.down[p]);
+      for (int q = q0; q <= q1; ++q) {
         const size_t pq = static_cast<size_t>(q) * w + x;
-        const float wq = static_cast<float>(a.left[pq] + a.right[pq] + 1);
+        const float wq = static_cast<float>(ps.a.left[pq] + ps.a.right[pq] + 1);
         support += wq;
-        const int sh = banded ? op - off[pq] : 0;
-        add_band_weighted(acc.data(), hs + pq * k, nrm.data(), wq, k, sh);
+        add_band_weighted(acc.data(), slot(q) + static_cast<size_t>(x) * k, nrm.data(), wq, k,
+                          ps.banded ? op - ps.off[pq] : 0);
       }
       const float norm = 1.0f / support;
-      float* o = dst + p * k;
+      float* o = ps.dst + p * k;
       for (int j = 0; j < k; ++j) o[j] = acc[j] * norm;
     }
   }
@@ -93,19 +118,26 @@ ffi::Error CbcaImpl(ffi::Buffer<ffi::F32> cost, ffi::Buffer<ffi::S32> offset, ff
   dims3(cost, h, w, k);
   if (cost.dimensions().size() != 3) return ffi::Error::InvalidArgument("cbca: cost must be [H, W, K]");
   Arms a{left.typed_data(), right.typed_data(), up.typed_data(), down.typed_data()};
-  const int32_t* off = offset.typed_data();
   float* dst = out->typed_data();
   const size_t n = static_cast<size_t>(h) * w * k;
   if (iterations <= 0) {
     std::memcpy(dst, cost.typed_data(), n * sizeof(float));
     return ffi::Error::Success();
   }
-  std::vector<float> hs(n);
+  int reach = 0;
+  for (size_t i = 0; i < static_cast<size_t>(h) * w; ++i) reach = std::max({reach, a.up[i], a.down[i]});
+  reach = std::min(reach, h);
+  // a pass reads its whole input while it writes: from the second pass on, the input is the
+  // previous pass's output, kept in a volume of its own
+  std::vector<float> prev(iterations > 1 ? n : 0);
   const float* src = cost.typed_data();
   for (int it = 0; it < iterations; ++it) {
-    parallel_for(h, threads, [&](int y0, int y1) { horizontal_rows(src, hs.data(), off, a, w, k, banded != 0, y0, y1); });
-    parallel_for(h, threads, [&](int y0, int y1) { vertical_rows(hs.data(), dst, off, a, w, k, banded != 0, y0, y1); });
-    src = dst;
+    if (it > 0) {
+      std::memcpy(prev.data(), dst, n * sizeof(float));
+      src = prev.data();
+    }
+    Pass ps{src, dst, offset.typed_data(), a, h, w, k, reach, banded != 0};
+    parallel_for(h, threads, [&](int y0, int y1) { cbca_rows(ps, y0, y1); });
   }
   return ffi::Error::Success();
 }

@@ -2,13 +2,21 @@
 
 Conventions: disparity maps are ``f32[H, W]`` or ``i32[H, W]``; a left pixel (y, x) with
 disparity d matches the right pixel (y, x - d).
+
+:func:`right_wta` has two kernels: the JAX kernel (the reference, and the path on every
+platform other than the CPU) and the native C++ kernel beside it (``right_view.cc``, an XLA FFI
+call), picked by its ``kernels`` setting (:mod:`stereojax.kernels`).
 """
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from stereojax import kernels as kernels_mod
 from stereojax.disparity.winner_takes_all import wta
 from stereojax.volume import BIG
 
@@ -30,8 +38,8 @@ def right_cost_from_left(cost: jax.Array, invalid: float = 1.0, valid_width=None
     return jnp.where(inside[None], vol, invalid)
 
 
-def right_wta(vol, right_offset, invalid: float = 1.0) -> jax.Array:
-    """``i32[H, W]`` WTA disparity of the right view, from the left volume:
+def right_wta_xla(vol, right_offset, invalid: float = 1.0) -> jax.Array:
+    """The JAX kernel of :func:`right_wta`. ``i32[H, W]`` WTA disparity of the right view, from the left volume:
     C_R(x, d) = C_L(x + d, d), for d in the right view's band ``[right_offset, right_offset + K)``
     (full range: :func:`right_cost_from_left`). Entries with x + d beyond the real width get
     ``invalid``, as in the full range; entries where d lies outside the left pixel's band get
@@ -52,3 +60,21 @@ def right_wta(vol, right_offset, invalid: float = 1.0) -> jax.Array:
     c = jnp.take_along_axis(vol.cost.reshape(h, w * k), flat, axis=1).reshape(h, w, k)
     c = jnp.where(in_image, jnp.where(in_band, c, BIG), invalid)
     return wta(c) + right_offset
+
+
+def right_wta_native(vol, right_offset, invalid: float = 1.0) -> jax.Array:
+    """The native kernel (``right_view.cc``) of :func:`right_wta_xla`."""
+    h, w, _ = vol.cost.shape
+    width = jnp.full((1,), w, jnp.int32) if vol.valid is None else vol.valid[1:2].astype(jnp.int32)
+    roff = right_offset if vol.banded else jnp.zeros((h, w), jnp.int32)
+    call = jax.ffi.ffi_call("stereojax_right_wta", jax.ShapeDtypeStruct((h, w), jnp.int32), vmap_method="sequential")
+    return call(vol.cost.astype(jnp.float32), vol.offset.astype(jnp.int32), roff.astype(jnp.int32), width,
+                banded=np.int32(bool(vol.banded)), invalid=np.float32(invalid),
+                threads=np.int32(kernels_mod.threads()))
+
+
+def right_wta(vol, right_offset, invalid: float = 1.0, kernels: str = "auto") -> jax.Array:
+    """``i32[H, W]`` WTA disparity of the right view from the left volume (see
+    :func:`right_wta_xla`), with the kernel of the ``kernels`` setting."""
+    return kernels_mod.select(kernels, functools.partial(right_wta_native, invalid=invalid),
+                              functools.partial(right_wta_xla, invalid=invalid), vol, right_offset)

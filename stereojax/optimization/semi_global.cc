@@ -51,32 +51,27 @@ struct Ctx {
 
 // One path step of one pixel; returns min_k of the new path costs. prev points at the
 // predecessor's first entry, with at least `m` BIG entries before and after its K entries.
-// RIGHT: the penalties also count the right image's step at the match columns (br[k]).
-template <bool RIGHT>
+// p1v, p2v: the penalties of each entry (they differ with the right image's step at the match
+// column), or null for the scalar penalties p1, p2.
 SJ_INLINE float step(const float* __restrict prev, int s, float m, const float* __restrict c,
-                     float* __restrict out, int k, const uint8_t* __restrict br, int bl, const Pen& pen) {
+                     float* __restrict out, int k, const float* __restrict p1v, const float* __restrict p2v,
+                     float p1, float p2) {
   const float* __restrict ps = prev + s;
   float nm = kBig;
-  if (RIGHT) {
-    const float a0 = pen.p1[0], a1 = pen.p1[1], a2 = pen.p1[2];
-    const float b0 = pen.p2[0], b1 = pen.p2[1], b2 = pen.p2[2];
+  if (p1v) {
     for (int j = 0; j < k; ++j) {
-      const int n = bl + br[j];
-      const float p1 = n == 0 ? a0 : (n == 1 ? a1 : a2);
-      const float p2 = n == 0 ? b0 : (n == 1 ? b1 : b2);
       const float same = ps[j];
       const float lo = ps[j - 1], hi = ps[j + 1];
       const float near = lo < hi ? lo : hi;
-      float best = near + p1;
+      float best = near + p1v[j];
       best = same < best ? same : best;
-      const float jump = m + p2;
+      const float jump = m + p2v[j];
       best = best < jump ? best : jump;
       const float v = c[j] + best - m;
       out[j] = v;
       nm = v < nm ? v : nm;
     }
   } else {
-    const float p1 = pen.p1[bl], p2 = pen.p2[bl];
     const float jump = m + p2;
     for (int j = 0; j < k; ++j) {
       const float same = ps[j];
@@ -103,8 +98,7 @@ SJ_INLINE float fresh(const float* __restrict c, float* __restrict out, int k) {
   return nm;
 }
 
-// The lines a sweep carries: per path, the path costs of the previous and the current line
-// (with BIG margins), their minima and band offsets.
+// A line of pixels' path costs, each K entries with BIG margins, their minima and band offsets.
 struct Line {
   std::vector<float> buf;
   std::vector<float> mins;
@@ -119,24 +113,37 @@ struct Line {
 
 SJ_INLINE bool big_step(float a, float b, float thr) { return std::fabs(a - b) >= thr; }
 
-// The right image's large steps along (dy, dx) on row y, laid out so that the pixel at column x
-// with band offset o reads its match columns max(x - o - k, 0), k = 0 .. K-1, as
-// rev[W - 1 - x + o + k] (ascending in k).
-void right_steps(const Ctx& cx, int y, int dy, int dx, uint8_t* rev) {
-  const int w = cx.w, h = cx.h;
-  const float* row = cx.right + static_cast<size_t>(y) * w;
-  const int yp = y - dy;
-  const bool row_ok = yp >= 0 && yp < h;
-  const float* prow = cx.right + static_cast<size_t>(row_ok ? yp : y) * w;
-  const int len = w + cx.max_disp;
-  for (int j = 0; j < len; ++j) {
-    const int x = std::max(w - 1 - j, 0);
-    const int xp = x - dx;
-    uint8_t b = 0;
-    if (row_ok && xp >= 0 && xp < w) b = big_step(row[x], prow[xp], cx.thr);
-    rev[j] = b;
+// The penalties of a path that counts the right image's steps, for row y: the right image's
+// large steps along (dy, dx) at the match columns, laid out so that the pixel at column x with
+// band offset o reads its entries k = 0 .. K-1 (match columns max(x - o - k, 0)) at
+// [W - 1 - x + o + k], ascending in k; one plane of P1 and one of P2 for a pixel without (bl = 0)
+// and with (bl = 1) a large step in the left image.
+struct RightPen {
+  std::vector<float> p1[2], p2[2];
+  void init(int len) {
+    for (int b = 0; b < 2; ++b) {
+      p1[b].resize(len);
+      p2[b].resize(len);
+    }
   }
-}
+  void fill(const Ctx& cx, int y, int dy, int dx, const Pen& pen) {
+    const int w = cx.w, h = cx.h;
+    const float* row = cx.right + static_cast<size_t>(y) * w;
+    const int yp = y - dy;
+    const bool row_ok = yp >= 0 && yp < h;
+    const float* prow = cx.right + static_cast<size_t>(row_ok ? yp : y) * w;
+    const int len = static_cast<int>(p1[0].size());
+    for (int j = 0; j < len; ++j) {
+      const int x = std::max(w - 1 - j, 0);
+      const int xp = x - dx;
+      const int br = row_ok && xp >= 0 && xp < w && big_step(row[x], prow[xp], cx.thr);
+      p1[0][j] = pen.p1[br];
+      p2[0][j] = pen.p2[br];
+      p1[1][j] = pen.p1[1 + br];
+      p2[1][j] = pen.p2[1 + br];
+    }
+  }
+};
 
 SJ_INLINE int band_shift(const Ctx& cx, int o, int op) {
   if (!cx.banded) return 0;
@@ -145,27 +152,32 @@ SJ_INLINE int band_shift(const Ctx& cx, int o, int op) {
   return s < -lim ? -lim : (s > lim ? lim : s);
 }
 
-// One sweep (dy = +1 down, -1 up) over every row; merges its row sums into out.
+// Where the two sweeps meet: per row, whether one sweep has stored its sum there yet.
 struct Merge {
   std::vector<std::mutex> locks;
   std::vector<uint8_t> seen;
   explicit Merge(int h) : locks(h), seen(h, 0) {}
 };
 
+// One sweep (dy = +1 down, -1 up) over every row, with the horizontal path dx = dy; merges its
+// row sums into out.
 SJ_CLONES void sweep(const Ctx& cx, int dy, Merge& merge) {
   const int h = cx.h, w = cx.w, k = cx.k;
-  const int dx = dy;  // the horizontal path of this sweep: left to right going down
+  const int dx = dy;
   const size_t row_len = static_cast<size_t>(w) * k;
-  std::vector<float> sum(row_len);
-  std::vector<float> hbuf(2 * static_cast<size_t>(cx.stride), kBig);  // horizontal carry, ping-pong
   const int n_row_paths = cx.dirs == 8 ? 3 : 1;
+  Line sum;  // this sweep's paths of the row, summed; the horizontal path writes it first
+  sum.init(w, cx);
   Line prev[3], cur[3];
   for (int p = 0; p < n_row_paths; ++p) {
     prev[p].init(w, cx);
     cur[p].init(w, cx);
   }
-  std::vector<float> path(static_cast<size_t>(cx.stride));
-  std::vector<uint8_t> rev_h(w + cx.max_disp), rev_v(w + cx.max_disp);
+  RightPen pen_h, pen_v;
+  if (cx.adaptive) {
+    pen_h.init(w + cx.max_disp);
+    pen_v.init(w + cx.max_disp);
+  }
   const bool adaptive = cx.adaptive;
   bool started = false;  // a row of the vertical paths exists
 
@@ -174,37 +186,34 @@ SJ_CLONES void sweep(const Ctx& cx, int dy, Merge& merge) {
     const float* crow = cx.cost + static_cast<size_t>(y) * row_len;
     const int32_t* orow = cx.off + static_cast<size_t>(y) * w;
     const float* lrow = cx.left + static_cast<size_t>(y) * w;
-    std::fill(sum.begin(), sum.end(), 0.f);
 
-    // horizontal path over the real columns [c0, c1), every row
+    // horizontal path over the real columns [c0, c1), every row; 0 elsewhere
+    for (int x = 0; x < w; ++x)
+      if (x < cx.c0 || x >= cx.c1) std::fill(sum.at(x, cx), sum.at(x, cx) + k, 0.f);
     if (cx.c1 > cx.c0) {
-      if (adaptive) right_steps(cx, y, 0, dx, rev_h.data());
+      if (adaptive) pen_h.fill(cx, y, 0, dx, cx.pen[0]);
       float m = 0.f;
       int op = 0;
-      int slot = 0;
       for (int t = 0; t < cx.c1 - cx.c0; ++t) {
         const int x = dx == 1 ? cx.c0 + t : cx.c1 - 1 - t;
         const float* c = crow + static_cast<size_t>(x) * k;
-        float* o = hbuf.data() + static_cast<size_t>(slot) * cx.stride + cx.m;
+        float* o = sum.at(x, cx);
         const int xo = orow[x];
         float nm;
         if (t == 0) {
           nm = fresh(c, o, k);
         } else {
-          const float* pv = hbuf.data() + static_cast<size_t>(1 - slot) * cx.stride + cx.m;
           const int xp = x - dx;
           const int bl = big_step(lrow[x], lrow[xp], cx.thr);
           const int s = band_shift(cx, xo, op);
+          const int at = w - 1 - x + xo;
           if (adaptive)
-            nm = step<true>(pv, s, m, c, o, k, rev_h.data() + (w - 1 - x + xo), bl, cx.pen[0]);
+            nm = step(sum.at(xp, cx), s, m, c, o, k, pen_h.p1[bl].data() + at, pen_h.p2[bl].data() + at, 0.f, 0.f);
           else
-            nm = step<false>(pv, s, m, c, o, k, nullptr, 0, cx.pen[0]);
+            nm = step(sum.at(xp, cx), s, m, c, o, k, nullptr, nullptr, cx.pen[0].p1[0], cx.pen[0].p2[0]);
         }
-        float* sm = sum.data() + static_cast<size_t>(x) * k;
-        for (int j = 0; j < k; ++j) sm[j] = o[j];
         m = nm;
         op = xo;
-        slot = 1 - slot;
       }
     }
 
@@ -212,9 +221,9 @@ SJ_CLONES void sweep(const Ctx& cx, int dy, Merge& merge) {
     if (y >= cx.r0 && y < cx.r1) {
       const bool first = !started;
       const int yp = y - dy;
-      const float* lprev = cx.left + static_cast<size_t>(yp >= 0 && yp < h ? yp : y) * w;
       const bool yp_in = yp >= 0 && yp < h;
-      if (adaptive) right_steps(cx, y, dy, 0, rev_v.data());
+      const float* lprev = cx.left + static_cast<size_t>(yp_in ? yp : y) * w;
+      if (adaptive) pen_v.fill(cx, y, dy, 0, cx.pen[1]);
       for (int p = 0; p < n_row_paths; ++p) {
         const int sx = p == 0 ? 0 : (p == 1 ? 1 : -1);  // the predecessor of x is x - sx
         const Pen& pen = p == 0 ? cx.pen[1] : cx.pen[2];
@@ -226,29 +235,24 @@ SJ_CLONES void sweep(const Ctx& cx, int dy, Merge& merge) {
           const int xo = orow[x];
           const int xp = x - sx;
           float nm;
-          if (first || xp < cx.c0 || xp >= cx.c1 || xp < 0 || xp >= w) {
-            // a fresh start; a vertical path (sx = 0) always has its predecessor after row one
-            if (first || sx != 0) {
-              nm = fresh(c, o, k);
-            } else {
-              const int bl = yp_in && big_step(lrow[x], lprev[x], cx.thr);
-              const int s = band_shift(cx, xo, pl.offs[x]);
-              nm = adaptive ? step<true>(pl.at(x, cx), s, pl.mins[x], c, o, k, rev_v.data() + (w - 1 - x + xo), bl, pen)
-                            : step<false>(pl.at(x, cx), s, pl.mins[x], c, o, k, nullptr, 0, pen);
-            }
+          // a fresh start: the first row, a diagonal predecessor outside the real columns
+          if (first || (sx != 0 && (xp < cx.c0 || xp >= cx.c1 || xp < 0 || xp >= w))) {
+            nm = fresh(c, o, k);
           } else {
             const int bl = yp_in && big_step(lrow[x], lprev[xp], cx.thr);
             const int s = band_shift(cx, xo, pl.offs[xp]);
-            if (sx == 0 && adaptive)
-              nm = step<true>(pl.at(xp, cx), s, pl.mins[xp], c, o, k, rev_v.data() + (w - 1 - x + xo), bl, pen);
-            else if (sx != 0 && adaptive)
-              nm = step<false>(pl.at(xp, cx), s, pl.mins[xp], c, o, k, nullptr, bl, pen);
-            else
-              nm = step<false>(pl.at(xp, cx), s, pl.mins[xp], c, o, k, nullptr, 0, pen);
+            if (sx == 0 && adaptive) {
+              const int at = w - 1 - x + xo;
+              nm = step(pl.at(xp, cx), s, pl.mins[xp], c, o, k, pen_v.p1[bl].data() + at, pen_v.p2[bl].data() + at,
+                        0.f, 0.f);
+            } else {
+              const int b = adaptive ? bl : 0;  // diagonals count the left image's step only
+              nm = step(pl.at(xp, cx), s, pl.mins[xp], c, o, k, nullptr, nullptr, pen.p1[b], pen.p2[b]);
+            }
           }
           cl.mins[x] = nm;
           cl.offs[x] = xo;
-          float* sm = sum.data() + static_cast<size_t>(x) * k;
+          float* __restrict sm = sum.at(x, cx);
           for (int j = 0; j < k; ++j) sm[j] += o[j];
         }
         std::swap(prev[p], cur[p]);
@@ -260,13 +264,15 @@ SJ_CLONES void sweep(const Ctx& cx, int dy, Merge& merge) {
     float* orow_out = cx.out + static_cast<size_t>(y) * row_len;
     std::lock_guard<std::mutex> lock(merge.locks[y]);
     if (!merge.seen[y]) {
-      std::memcpy(orow_out, sum.data(), row_len * sizeof(float));
+      for (int x = 0; x < w; ++x) std::memcpy(orow_out + static_cast<size_t>(x) * k, sum.at(x, cx), k * sizeof(float));
       merge.seen[y] = 1;
     } else {
       const float dirs = static_cast<float>(cx.dirs);
-      const float* __restrict sm = sum.data();
-      float* __restrict dst = orow_out;
-      for (size_t j = 0; j < row_len; ++j) dst[j] = (dst[j] + sm[j]) / dirs;
+      for (int x = 0; x < w; ++x) {
+        const float* __restrict sm = sum.at(x, cx);
+        float* __restrict dst = orow_out + static_cast<size_t>(x) * k;
+        for (int j = 0; j < k; ++j) dst[j] = (dst[j] + sm[j]) / dirs;
+      }
     }
   }
 }

@@ -1,0 +1,72 @@
+// Native right view + WTA: the kernel of right_view.py (right_wta), band and full range. Held
+// exactly equal to the JAX kernel by tests/disparity/test_right_view_native.py.
+//
+// For the right pixel (y, x) and each d of its band [roff, roff + K) (the full range: roff = 0,
+// K = D): C_R(x, d) = C_L(x + d, d), read from the left pixel x + d's band (BIG where d lies
+// outside it), `invalid` where x + d lies beyond the real width. The result is the first d of
+// least cost (JAX's argmin), as an absolute disparity. Rows run on all threads.
+#include <algorithm>
+
+#include "../native_common.h"
+
+namespace stereojax {
+namespace {
+
+SJ_CLONES void right_rows(const float* cost, const int32_t* off, const int32_t* roff, int32_t* out, int w, int k,
+                          int width, bool banded, float invalid, int y0, int y1) {
+  for (int y = y0; y < y1; ++y) {
+    const float* crow = cost + static_cast<size_t>(y) * w * k;
+    const int32_t* orow = off + static_cast<size_t>(y) * w;
+    const int32_t* rrow = roff + static_cast<size_t>(y) * w;
+    for (int x = 0; x < w; ++x) {
+      const int r0 = banded ? rrow[x] : 0;
+      float best = 0.f;
+      int arg = 0;
+      for (int j = 0; j < k; ++j) {
+        const int d = r0 + j;
+        const int xl = x + d;
+        float c;
+        if (xl >= width) {
+          c = invalid;
+        } else {
+          const int jl = banded ? d - orow[xl] : d;
+          c = (jl >= 0 && jl < k) ? crow[static_cast<size_t>(xl) * k + jl] : kBig;
+        }
+        if (j == 0 || c < best) {
+          best = c;
+          arg = j;
+        }
+      }
+      out[static_cast<size_t>(y) * w + x] = arg + r0;
+    }
+  }
+}
+
+ffi::Error RightWtaImpl(ffi::Buffer<ffi::F32> cost, ffi::Buffer<ffi::S32> offset, ffi::Buffer<ffi::S32> right_offset,
+                        ffi::Buffer<ffi::S32> width, ffi::ResultBuffer<ffi::S32> out, int32_t banded, float invalid,
+                        int32_t threads) {
+  int h, w, k;
+  dims3(cost, h, w, k);
+  const int wd = std::min(w, width.typed_data()[0]);
+  const float* c = cost.typed_data();
+  const int32_t* off = offset.typed_data();
+  const int32_t* roff = right_offset.typed_data();
+  int32_t* dst = out->typed_data();
+  parallel_for(h, threads, [&](int y0, int y1) { right_rows(c, off, roff, dst, w, k, wd, banded != 0, invalid, y0, y1); });
+  return ffi::Error::Success();
+}
+
+}  // namespace
+}  // namespace stereojax
+
+SJ_EXPORT(StereojaxRightWta);
+XLA_FFI_DEFINE_HANDLER_SYMBOL(StereojaxRightWta, stereojax::RightWtaImpl,
+                              xla::ffi::Ffi::Bind()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F32>>()  // left-view cost [H, W, K]
+                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()  // left band offsets [H, W]
+                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()  // right band offsets [H, W]
+                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()  // real width [1]
+                                  .Ret<xla::ffi::Buffer<xla::ffi::S32>>()  // right disparity [H, W]
+                                  .Attr<int32_t>("banded")
+                                  .Attr<float>("invalid")
+                                  .Attr<int32_t>("threads"));
