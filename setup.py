@@ -18,6 +18,7 @@ SOURCES = [
     "stereojax/aggregation/cross_based.cc",
     "stereojax/matching_cost/census.cc",
     "stereojax/disparity/right_view.cc",
+    "stereojax/validation/filling.cc",
 ]
 
 

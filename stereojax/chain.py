@@ -279,7 +279,7 @@ def _lr_fill(st: State, config) -> State:
     mask = st.real_mask()
     if mask is not None:    # padding never serves as a source of the filling
         labels = jnp.where(mask, labels, left_right.MISMATCH)
-    return st.replace(labels=labels, disp=filling.fill_disparity(st.disp, labels))
+    return st.replace(labels=labels, disp=filling.fill_disparity(st.disp, labels, config.kernels))
 
 
 def _confidence(st: State, config) -> State:

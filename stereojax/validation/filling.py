@@ -2,12 +2,19 @@
 
 Conventions: disparity maps are ``f32[H, W]`` or ``i32[H, W]``; a left pixel (y, x) with
 disparity d matches the right pixel (y, x - d).
+
+:func:`fill_disparity` has two kernels: the JAX kernel (the reference, and the path on every
+platform other than the CPU) and the native C++ kernel beside it (``filling.cc``, an XLA FFI
+call), picked by its ``kernels`` setting (:mod:`stereojax.kernels`).
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from stereojax import kernels as kernels_mod
 
 from stereojax.validation.left_right import CORRECT, MISMATCH, OCCLUSION
 from stereojax.volume import BIG
@@ -64,8 +71,8 @@ def sort8(values: list) -> list:
     return v
 
 
-def fill_disparity(disp: jax.Array, labels: jax.Array) -> jax.Array:
-    """Fill non-CORRECT pixels of ``f32[H, W]`` disparity (MC-CNN's interpolation).
+def fill_disparity_xla(disp: jax.Array, labels: jax.Array) -> jax.Array:
+    """The JAX kernel of :func:`fill_disparity`. Fill non-CORRECT pixels of ``f32[H, W]`` disparity (MC-CNN's interpolation).
 
     Occluded pixels take the nearest correct disparity to their left (the background; to
     their right where the row has none on the left). Mismatched pixels take the median of the
@@ -92,3 +99,15 @@ def fill_disparity(disp: jax.Array, labels: jax.Array) -> jax.Array:
     mism_fill = jnp.where(n > 0, 0.5 * (lo + hi), disp)
 
     return jnp.where(labels == OCCLUSION, occl_fill, jnp.where(labels == MISMATCH, mism_fill, disp))
+
+
+def fill_disparity_native(disp: jax.Array, labels: jax.Array) -> jax.Array:
+    """The native kernel (``filling.cc``) of :func:`fill_disparity_xla`."""
+    call = jax.ffi.ffi_call("stereojax_fill", jax.ShapeDtypeStruct(disp.shape, jnp.float32), vmap_method="sequential")
+    return call(disp.astype(jnp.float32), labels.astype(jnp.int32), threads=np.int32(kernels_mod.threads()))
+
+
+def fill_disparity(disp: jax.Array, labels: jax.Array, kernels: str = "auto") -> jax.Array:
+    """Fill non-CORRECT pixels of ``f32[H, W]`` disparity (MC-CNN's interpolation; see
+    :func:`fill_disparity_xla`), with the kernel of the ``kernels`` setting."""
+    return kernels_mod.select(kernels, fill_disparity_native, fill_disparity_xla, disp, labels)
