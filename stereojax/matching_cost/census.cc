@@ -6,6 +6,7 @@
 // [off, off + K) (the full range: off = 0, K = D); right columns left of the image repeat
 // column 0, as the JAX kernel does; border "worst": INVALID_COST (1) where x - off - k < 0.
 #include <algorithm>
+#include <cstring>
 #include <vector>
 
 #include "../native_common.h"
@@ -13,25 +14,49 @@
 namespace stereojax {
 namespace {
 
+// NW census words per pixel; NW = 2 (the 7x9 window's 62 bits) reads them as one 64-bit word
+template <int NW>
+SJ_INLINE int hamming(const uint32_t* a, const uint32_t* b, int nw) {
+  if (NW == 2) {
+    uint64_t u, v;
+    std::memcpy(&u, a, 8);
+    std::memcpy(&v, b, 8);
+    return __builtin_popcountll(u ^ v);
+  }
+  int bits = 0;
+  for (int t = 0; t < (NW > 0 ? NW : nw); ++t) bits += __builtin_popcount(a[t] ^ b[t]);
+  return bits;
+}
+
+template <int NW>
+SJ_INLINE void census_row(const uint32_t* cl, const uint32_t* rrow, const int32_t* off, float* out, int w, int k,
+                          int nw, bool worst, float scale) {
+  for (int x = 0; x < w; ++x) {
+    const uint32_t* a = cl + static_cast<size_t>(x) * nw;
+    float* o = out + static_cast<size_t>(x) * k;
+    const int base = x - off[x];
+    const int inside = std::min(k, base + 1);  // entries j < inside have their match in the image
+    for (int j = 0; j < inside; ++j)
+      o[j] = static_cast<float>(hamming<NW>(a, rrow + static_cast<size_t>(base - j) * nw, nw)) * scale;
+    if (inside < k) {  // the match leaves the image: column 0 repeats (or "worst": INVALID_COST)
+      const float edge = worst ? 1.0f : static_cast<float>(hamming<NW>(a, rrow, nw)) * scale;
+      for (int j = std::max(inside, 0); j < k; ++j) o[j] = edge;
+    }
+  }
+}
+
 SJ_CLONES void census_rows(const uint32_t* cl, const uint32_t* cr, const int32_t* off, float* out, int w, int k,
                            int nw, bool worst, float scale, int y0, int y1) {
   for (int y = y0; y < y1; ++y) {
-    const uint32_t* rrow = cr + static_cast<size_t>(y) * w * nw;
-    for (int x = 0; x < w; ++x) {
-      const size_t p = static_cast<size_t>(y) * w + x;
-      const uint32_t* a = cl + p * nw;
-      float* o = out + p * k;
-      const int base = x - off[p];
-      for (int j = 0; j < k; ++j) {
-        const int u = base - j;
-        const uint32_t* b = rrow + static_cast<size_t>(u > 0 ? u : 0) * nw;
-        int bits = 0;
-        for (int t = 0; t < nw; ++t) bits += __builtin_popcount(a[t] ^ b[t]);
-        float v = static_cast<float>(bits) * scale;
-        if (worst && u < 0) v = 1.0f;
-        o[j] = v;
-      }
-    }
+    const size_t p = static_cast<size_t>(y) * w;
+    const uint32_t* a = cl + p * nw;
+    const uint32_t* b = cr + p * nw;
+    if (nw == 2)
+      census_row<2>(a, b, off + p, out + p * k, w, k, nw, worst, scale);
+    else if (nw == 1)
+      census_row<1>(a, b, off + p, out + p * k, w, k, nw, worst, scale);
+    else
+      census_row<0>(a, b, off + p, out + p * k, w, k, nw, worst, scale);
   }
 }
 
