@@ -59,8 +59,9 @@ struct Pass {
 };
 
 // The horizontal sums of row y into hrow [W, K].
+template <int KC>
 SJ_INLINE void horizontal_row(const Pass& ps, int y, float* __restrict hrow) {
-  const int w = ps.w, k = ps.k;
+  const int w = ps.w, k = KC > 0 ? KC : ps.k;
   for (int x = 0; x < w; ++x) {
     const size_t p = static_cast<size_t>(y) * w + x;
     const float* nu = ps.src + p * k;
@@ -78,8 +79,9 @@ SJ_INLINE void horizontal_row(const Pass& ps, int y, float* __restrict hrow) {
 
 // Rows [y0, y1): the horizontal sums of rows y0 - reach .. y1 + reach go through a ring of
 // 2 reach + 1 rows (this thread's own), the vertical sums of each row read it.
-SJ_CLONES void cbca_rows(const Pass& ps, int y0, int y1) {
-  const int w = ps.w, k = ps.k, span = 2 * ps.reach + 1;
+template <int KC>
+SJ_INLINE void cbca_rows_k(const Pass& ps, int y0, int y1) {
+  const int w = ps.w, k = KC > 0 ? KC : ps.k, span = 2 * ps.reach + 1;
   const size_t row_len = static_cast<size_t>(w) * k;
   std::vector<float> ring(row_len * span);
   std::vector<float> acc(k), nrm(k);
@@ -87,7 +89,7 @@ SJ_CLONES void cbca_rows(const Pass& ps, int y0, int y1) {
   int next = std::max(0, y0 - ps.reach);  // the next row whose horizontal sums are due
   for (int y = y0; y < y1; ++y) {
     const int need = std::min(ps.h, y + ps.reach + 1);
-    for (; next < need; ++next) horizontal_row(ps, next, slot(next));
+    for (; next < need; ++next) horizontal_row<KC>(ps, next, slot(next));
     for (int x = 0; x < w; ++x) {
       const size_t p = static_cast<size_t>(y) * w + x;
       const float* hp = slot(y) + static_cast<size_t>(x) * k;
@@ -109,6 +111,15 @@ SJ_CLONES void cbca_rows(const Pass& ps, int y0, int y1) {
       for (int j = 0; j < k; ++j) o[j] = acc[j] * norm;
     }
   }
+}
+
+// The band width of the shipped chains (48) compiled as a constant: the inner loops then have a
+// fixed trip count and no remainder, which measured about 2x faster; any other K at run time.
+SJ_CLONES void cbca_rows(const Pass& ps, int y0, int y1) {
+  if (ps.k == 48)
+    cbca_rows_k<48>(ps, y0, y1);
+  else
+    cbca_rows_k<0>(ps, y0, y1);
 }
 
 ffi::Error CbcaImpl(ffi::Buffer<ffi::F32> cost, ffi::Buffer<ffi::S32> offset, ffi::Buffer<ffi::S32> left,

@@ -6,39 +6,51 @@
 // outside it), `invalid` where x + d lies beyond the real width. The result is the first d of
 // least cost (JAX's argmin), as an absolute disparity. Rows run on all threads.
 #include <algorithm>
+#include <vector>
 
 #include "../native_common.h"
 
 namespace stereojax {
 namespace {
 
+// The right pixel x's costs C_L(x + d, d) for its band, gathered into c[0 .. K) (a loop the
+// compiler vectorises with gathers), then the first index of their minimum.
+template <int KC>
+SJ_INLINE void right_row(const float* crow, const int32_t* orow, const int32_t* rrow, int32_t* out, int w, int kk,
+                         int width, bool banded, float invalid, float* __restrict c) {
+  const int k = KC > 0 ? KC : kk;
+  for (int x = 0; x < w; ++x) {
+    const int r0 = banded ? rrow[x] : 0;
+    const int n_in = std::max(0, std::min(k, width - x - r0));  // entries with x + d inside the width
+    for (int j = 0; j < n_in; ++j) {
+      const int d = r0 + j;
+      const int xl = x + d;
+      const int jl = banded ? d - orow[xl] : d;
+      const bool in_band = static_cast<unsigned>(jl) < static_cast<unsigned>(k);
+      const float v = crow[static_cast<size_t>(xl) * k + (in_band ? jl : 0)];
+      c[j] = in_band ? v : kBig;
+    }
+    for (int j = n_in; j < k; ++j) c[j] = invalid;
+    float best = c[0];
+    for (int j = 1; j < k; ++j) best = c[j] < best ? c[j] : best;
+    int arg = 0;
+    while (c[arg] != best) ++arg;
+    out[x] = arg + r0;
+  }
+}
+
 SJ_CLONES void right_rows(const float* cost, const int32_t* off, const int32_t* roff, int32_t* out, int w, int k,
                           int width, bool banded, float invalid, int y0, int y1) {
+  std::vector<float> c(k);
   for (int y = y0; y < y1; ++y) {
     const float* crow = cost + static_cast<size_t>(y) * w * k;
     const int32_t* orow = off + static_cast<size_t>(y) * w;
     const int32_t* rrow = roff + static_cast<size_t>(y) * w;
-    for (int x = 0; x < w; ++x) {
-      const int r0 = banded ? rrow[x] : 0;
-      float best = 0.f;
-      int arg = 0;
-      for (int j = 0; j < k; ++j) {
-        const int d = r0 + j;
-        const int xl = x + d;
-        float c;
-        if (xl >= width) {
-          c = invalid;
-        } else {
-          const int jl = banded ? d - orow[xl] : d;
-          c = (jl >= 0 && jl < k) ? crow[static_cast<size_t>(xl) * k + jl] : kBig;
-        }
-        if (j == 0 || c < best) {
-          best = c;
-          arg = j;
-        }
-      }
-      out[static_cast<size_t>(y) * w + x] = arg + r0;
-    }
+    int32_t* o = out + static_cast<size_t>(y) * w;
+    if (k == 48)
+      right_row<48>(crow, orow, rrow, o, w, k, width, banded, invalid, c.data());
+    else
+      right_row<0>(crow, orow, rrow, o, w, k, width, banded, invalid, c.data());
   }
 }
 

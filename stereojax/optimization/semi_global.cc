@@ -161,8 +161,9 @@ struct Merge {
 
 // One sweep (dy = +1 down, -1 up) over every row, with the horizontal path dx = dy; merges its
 // row sums into out.
-SJ_CLONES void sweep(const Ctx& cx, int dy, Merge& merge) {
-  const int h = cx.h, w = cx.w, k = cx.k;
+template <int KC>
+SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
+  const int h = cx.h, w = cx.w, k = KC > 0 ? KC : cx.k;
   const int dx = dy;
   const size_t row_len = static_cast<size_t>(w) * k;
   const int n_row_paths = cx.dirs == 8 ? 3 : 1;
@@ -275,6 +276,15 @@ SJ_CLONES void sweep(const Ctx& cx, int dy, Merge& merge) {
       }
     }
   }
+}
+
+// The band width of the shipped chains (48) compiled as a constant (fixed trip counts, no
+// remainder loops); any other K at run time.
+SJ_CLONES void sweep(const Ctx& cx, int dy, Merge& merge) {
+  if (cx.k == 48)
+    sweep_k<48>(cx, dy, merge);
+  else
+    sweep_k<0>(cx, dy, merge);
 }
 
 ffi::Error SgmImpl(ffi::Buffer<ffi::F32> cost, ffi::Buffer<ffi::S32> offset, ffi::Buffer<ffi::F32> left,
