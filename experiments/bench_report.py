@@ -45,16 +45,26 @@ RATE_STAGES = ("coarse pass (bands)", "matching cost", "candidate chain", "CBCA 
                "CBCA after SGM", "right view + WTA")
 
 
-def entry_rates(r: dict) -> list[dict]:
+def _profiles(r: dict, xla: bool = False) -> list[tuple[str, dict]]:
+    """(chain, stage profile) of every profiled chain: the default kernels', or (``xla``) the
+    JAX kernels' where the run also timed them (``census_stages_xla``, a profile's ``stages_xla``)."""
+    if xla:
+        out = [("census", r.get("census_stages_xla"))]
+        out += [(m, p.get("stages_xla")) for m, p in r["profiles"].items()]
+    else:
+        out = [("census", r["census_stages"])] + [(m, p["stages"]) for m, p in r["profiles"].items()]
+    return [(m, st) for m, st in out if st]
+
+
+def entry_rates(r: dict, xla: bool = False) -> list[dict]:
     """Cost entries per second of the band kernels of each profiled chain against OpenCV SGBM's
     (its H x W x D entries in its measured time, cost and every path included): one row per
     (chain, stage) of :data:`RATE_STAGES` that ran, with ``x_opencv`` the time per entry
-    relative to OpenCV's."""
+    relative to OpenCV's (``xla``: the stage profiles of the JAX kernels, where measured)."""
     h, w = r["shape"]
     sgbm_rate = h * w * r["max_disp"] / r["sgbm_padded_s"]
-    chains = [("census", r["census_stages"])] + [(m, p["stages"]) for m, p in r["profiles"].items()]
     rows = []
-    for chain_name, stages in chains:
+    for chain_name, stages in _profiles(r, xla):
         for name in RATE_STAGES:
             t = stages.get(name)
             if not t or not t.get("entries") or t["warm_s"] <= 0:
@@ -67,18 +77,24 @@ def entry_rates(r: dict) -> list[dict]:
     return rows
 
 
+def _held(r: dict, stages: dict, chain_name: str) -> str:
+    """Which stage of a profile holds the chain most (the tower and head of a learned chain left
+    out), with its entries per second against OpenCV's, and the slowest stages."""
+    rates = {(row["chain"], row["stage"]): row for row in entry_rates(r)}
+    name, v = max(((n, v) for n, v in stages.items() if n not in NETWORK_STAGES or chain_name == "census"),
+                  key=lambda kv: kv[1]["warm_s"])
+    rate = rates.get((chain_name, name))
+    per = (f", {rate['rate'] / 1e6:.0f} M entries/s, {rate['x_opencv']:.1f}× OpenCV's time per entry"
+           if rate else "")
+    return f"Held most by {name} ({v['warm_s']:.2f} s{per}); slowest: {_top(stages)}."
+
+
 def chain_targets(r: dict) -> list[str]:
     """The lines on issue 36's targets: met, or by how much they are missed and which stage holds it."""
     sg, chains, t = r["sgbm_padded_s"], r["chains"], CHAIN_TARGETS
-    rates = {(row["chain"], row["stage"]): row for row in entry_rates(r)}
 
     def held(stages: dict, chain_name: str) -> str:
-        name, v = max(((n, v) for n, v in stages.items() if n not in NETWORK_STAGES or chain_name == "census"),
-                      key=lambda kv: kv[1]["warm_s"])
-        rate = rates.get((chain_name, name))
-        per = (f", {rate['rate'] / 1e6:.0f} M entries/s, {rate['x_opencv']:.1f}× OpenCV's time per entry"
-               if rate else "")
-        return f"Held most by {name} ({v['warm_s']:.2f} s{per}); slowest: {_top(stages)}."
+        return _held(r, stages, chain_name)
 
     out = []
     if "warm_s" in chains.get("census", {}):
@@ -106,15 +122,161 @@ def chain_targets(r: dict) -> list[str]:
 
 
 def rate_table(r: dict) -> list[str]:
-    """The markdown table of :func:`entry_rates`."""
+    """The markdown table of :func:`entry_rates`: with the JAX kernels' rates of the same run beside
+    the default kernels' where the run measured them (issue 51), else one set of columns."""
     h, w = r["shape"]
     n = h * w * r["max_disp"]
     lines = [f"OpenCV SGBM: {n / 1e6:.0f} M entries ({w}x{h}x{r['max_disp']}) in {r['sgbm_padded_s']:.3f} s = "
-             f"{n / r['sgbm_padded_s'] / 1e6:.0f} M entries/s (its cost, every path and its WTA).", "",
-             "| chain | stage | M entries | warm s | M entries/s | × OpenCV's time per entry |", "|---|---|---|---|---|---|"]
-    lines += [f"| {x['chain']} | {x['stage']} | {x['entries'] / 1e6:.1f} | {x['warm_s']:.3f} | {x['rate'] / 1e6:.0f} | "
-              f"{x['x_opencv']:.1f} |" for x in entry_rates(r)]
+             f"{n / r['sgbm_padded_s'] / 1e6:.0f} M entries/s (its cost, every path and its WTA).", ""]
+    xla = {(x["chain"], x["stage"]): x for x in entry_rates(r, xla=True)}
+    if not xla:
+        lines += ["| chain | stage | M entries | warm s | M entries/s | × OpenCV's time per entry |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {x['chain']} | {x['stage']} | {x['entries'] / 1e6:.1f} | {x['warm_s']:.3f} | "
+                  f"{x['rate'] / 1e6:.0f} | {x['x_opencv']:.1f} |" for x in entry_rates(r)]
+        return lines
+    k = _kernels(r)
+    lines += [f"| chain | stage | M entries | {k} warm s | {k} M entries/s | {k} × OpenCV's time per entry | "
+              "xla warm s | xla M entries/s | xla × OpenCV's time per entry |", "|---|---|---|---|---|---|---|---|---|"]
+    for x in entry_rates(r):
+        y = xla.get((x["chain"], x["stage"]))
+        other = [f"{y['warm_s']:.3f}", f"{y['rate'] / 1e6:.0f}", f"{y['x_opencv']:.1f}"] if y else ["", "", ""]
+        cells = [x["chain"], x["stage"], f"{x['entries'] / 1e6:.1f}", f"{x['warm_s']:.3f}", f"{x['rate'] / 1e6:.0f}",
+                 f"{x['x_opencv']:.1f}", *other]
+        lines.append(("| " + " | ".join(cells) + " |").replace("  ", " "))
     return lines
+
+
+#: the targets of issue 51 (native CPU kernels): ratios to SGBM of the same run (the chain around
+#: `kitti2015`'s tower and head as the sum of its stage profile's other stages); each stage profile
+#: adds up to its chain's warm time within this share; every native kernel's time per cost entry
+#: against OpenCV's; peak RSS of a census and a compact predict process with the compiled chain
+#: from the cache
+NATIVE_TARGETS = {"census_x_sgbm": 3.0, "compact_x_sgbm": 12.0, "best_chain_x_sgbm": 4.0, "profile_gap_pct": 10.0,
+                  "x_opencv": 3.0, "peak_rss_gib": 1.0}
+
+#: compile time (s) of each whole chain in a fresh process without the cache before the native
+#: kernels: the `make bench` of 2026-12-06 (commit 95d8fbc), the run issue 51 quotes as "now"
+COMPILE_BEFORE = {"census": 7.733, "kitti2015_compact": 13.034, "kitti2015": 12.561, "cascade": 15.432}
+COMPILE_BEFORE_RUN = "`make bench` of 2026-12-06, before the native kernels"
+
+
+def _kernels(r: dict) -> str:
+    """The kernels of the run's default chains, "native" or "xla" (a bench.json without the
+    ``kernels`` entry predates the native kernels: "xla")."""
+    return (r.get("kernels") or {}).get("kernels", "xla")
+
+
+def kernels_line(r: dict) -> str:
+    """The kernels of the run, in words (bench.md's first line and issue 51's section)."""
+    rec = r.get("kernels")
+    if rec is None:
+        return "JAX (XLA) kernels (this bench.json predates the native kernels)"
+    if rec["kernels"] == "native":
+        both = " and the JAX kernels beside them" if r.get("chains_xla") or r.get("census_stages_xla") else ""
+        return f"native C++ kernels on the CPU (XLA FFI){both}"
+    return "JAX (XLA) kernels" + (f": the native kernels did not load ({rec['reason']})" if rec.get("reason") else
+                                  f" (setting {rec.get('setting', 'xla')!r})")
+
+
+def _sum_s(stages: dict, network: bool = True) -> float:
+    """Warm seconds of a stage profile's stages (``network=False``: without the tower and the head)."""
+    return sum(v["warm_s"] for n, v in stages.items() if network or n not in NETWORK_STAGES)
+
+
+def native_targets(r: dict) -> list[str]:
+    """The lines on issue 51's targets: met, or by how much they are missed and which stage holds
+    it; the JAX kernels' numbers of the same run beside the native ones where measured. A
+    bench.json from before the native kernels (no ``kernels`` entry, no ``*_xla`` keys) gives the
+    same lines for its JAX kernels, without the comparison."""
+    sg, chains, t = r["sgbm_padded_s"], r["chains"], NATIVE_TARGETS
+    xla_chains = r.get("chains_xla") or {}
+    profiles = r["profiles"]
+    stages_of = {"census": r["census_stages"], **{m: p["stages"] for m, p in profiles.items() if m in LEARNED}}
+    xla_stages_of = dict(_profiles(r, xla=True))
+    native = _kernels(r) == "native"
+    out = [f"Kernels of this run: {kernels_line(r)}." + ("" if native else
+           " No native kernel ran, so every line below is the JAX kernels'."), ""]
+
+    def beside(m: str) -> str:
+        c = xla_chains.get(m, {})
+        return (f"With the JAX kernels in this run: {c['warm_s']:.2f} s = {c['warm_s'] / sg:.1f}× SGBM."
+                if "warm_s" in c else "")
+
+    for m, label, goal in (("census", "census chain", t["census_x_sgbm"]),
+                           ("kitti2015_compact", "`kitti2015_compact`", t["compact_x_sgbm"])):
+        if "warm_s" in chains.get(m, {}) and m in stages_of:
+            warm = chains[m]["warm_s"]
+            _target_line(out, f"{label}, × SGBM", warm / sg, goal, "×", _held(r, stages_of[m], m),
+                         info=f"{warm:.2f} s against SGBM's {sg:.3f} s. {beside(m)}")
+    prof = profiles.get("kitti2015")
+    if prof:
+        rest, net = _sum_s(prof["stages"], network=False), _network_s(prof)
+        whole = chains.get("kitti2015", {}).get("warm_s")
+        minus = f"; the chain's warm time minus them: {whole - net:.2f} s" if whole else ""
+        _target_line(out, "the chain around `kitti2015`'s tower and head (its stage profile without them), × SGBM",
+                     rest / sg, t["best_chain_x_sgbm"], "×",
+                     _held(r, {n: v for n, v in prof["stages"].items() if n not in NETWORK_STAGES}, "kitti2015"),
+                     info=f"{rest:.2f} s in the other stages (tower + head {net:.2f} s{minus}).")
+    best = r["best"]
+    for m in dict.fromkeys(("census", "kitti2015_compact", best)):
+        stages, whole = stages_of.get(m), chains.get(m, {}).get("warm_s")
+        if not stages or not whole:
+            continue
+        total = _sum_s(stages)
+        gap = 100 * abs(total - whole) / whole
+        label = f"`best` (= `{m}`)" if m == best else ("census" if m == "census" else f"`{m}`")
+        info = f"The stages {total:.2f} s, the chain {whole:.2f} s (fresh process)"
+        xs, xc = xla_stages_of.get(m), xla_chains.get(m, {}).get("warm_s")
+        if xs and xc:
+            info += f"; with the JAX kernels {_sum_s(xs):.2f} s against {xc:.2f} s"
+        where = (f"{whole - total:.2f} s of the chain sit in no stage" if whole > total else
+                 f"the stages jitted alone take {total - whole:.2f} s more than the chain")
+        _target_line(out, f"the gap between the stage profile of {label} and its chain's warm time",
+                     gap, t["profile_gap_pct"], " %", f"{where}.", info=info + ".")
+    xla_rates = {}
+    for x in entry_rates(r, xla=True):
+        xla_rates.setdefault(x["stage"], []).append(x)
+    rows = {}
+    for x in entry_rates(r):
+        rows.setdefault(x["stage"], []).append(x)
+    for name in RATE_STAGES:
+        if name not in rows:
+            continue
+        worst = max(rows[name], key=lambda x: x["x_opencv"])
+        info = ", ".join(f"{x['chain']} {x['x_opencv']:.1f}× ({x['rate'] / 1e6:.0f} M entries/s)" for x in rows[name])
+        if name in xla_rates:
+            info += "; the JAX kernels: " + ", ".join(f"{x['chain']} {x['x_opencv']:.1f}×" for x in xla_rates[name])
+        _target_line(out, f"{name}: time per cost entry, × OpenCV's", worst["x_opencv"], t["x_opencv"], "×",
+                     f"Slowest in {worst['chain']}.", info=info + ".")
+    for m in ("census", "kitti2015_compact"):
+        p = r["processes"].get(m)
+        if p:
+            _target_line(out, f"peak RSS of a `{m}` predict process, compiled chain from the cache",
+                         p["cache_hit"]["peak_rss_gib"], t["peak_rss_gib"], " GiB",
+                         info=f"Cold cache: {p['cold']['peak_rss_gib']:.2f} GiB.")
+    order = list(COMPILE_BEFORE)
+    for m in sorted(chains, key=lambda m: (order.index(m) if m in order else len(order), m)):
+        c = chains[m]
+        if "compile_s" not in c:
+            continue
+        before, x = COMPILE_BEFORE.get(m), xla_chains.get(m, {})
+        parts = [f"the JAX kernels in this run: {x['compile_s']:.1f} s"] if "compile_s" in x else []
+        cold = r["processes"].get("best" if m == best else m, {}).get("cold", {})
+        if "compile_s" in cold:
+            parts.append(f"`stereojax predict` with a cold cache: {cold['compile_s']:.1f} s")
+        if before is None:
+            rest = f" ({'; '.join(parts)})" if parts else ""
+            out.append(f"* compile time of the `{m}` chain (fresh process, no cache): {c['compile_s']:.1f} s{rest}.")
+            continue
+        verdict = ("no worse than before." if round(c["compile_s"], 1) <= round(before, 1) else
+                   f"**worse than before**, {c['compile_s'] - before:.1f} s over.")
+        rest = f" {'; '.join(parts)}." if parts else ""
+        out.append(f"* compile time of the `{m}` chain (fresh process, no cache), ≤ {before:.1f} s ({COMPILE_BEFORE_RUN}):"
+                   f" {c['compile_s']:.1f} s — {verdict}{rest[:2].upper() + rest[2:] if rest else ''}")
+    out.append("* the scores (`stereojax evaluate` on 000021–000030, `make demo`'s errors) are not measured by "
+               "`make bench`.")
+    return out
 
 
 def accuracy_records(out_dir: Path) -> dict:
@@ -159,11 +321,12 @@ def _arch(net: dict) -> str:
     return f"tower {net['features']} maps, head {'-'.join(map(str, net['widths']))}"
 
 
-def _target_line(out: list, name: str, value: float, goal: float, unit: str, why: str = "") -> None:
-    """Append one target's line to ``out``: met, or by how much it is missed and why."""
+def _target_line(out: list, name: str, value: float, goal: float, unit: str, why: str = "", info: str = "") -> None:
+    """Append one target's line to ``out``: met, or by how much it is missed and why (``info``:
+    the numbers behind it, said either way)."""
     ok = value <= goal
-    out.append(f"* {name} ≤ {goal:g}{unit}: {value:.2f}{unit} — " + ("met." if ok else
-               f"**not met**, {value - goal:.2f}{unit} over. {why}").rstrip())
+    out.append((f"* {name} ≤ {goal:g}{unit}: {value:.2f}{unit} — " + ("met." if ok else
+                f"**not met**, {value - goal:.2f}{unit} over. {why}").rstrip() + f" {info.strip()}").rstrip())
 
 
 def _top(stages: dict, n: int = 3) -> str:
@@ -320,8 +483,10 @@ def format_bench(r: dict) -> str:
     def target(ok):
         return "met" if ok else "**not met**"
 
+    xla_chains = r.get("chains_xla") or {}
     lines = [f"# Benchmark: {r['frame']}, {w}x{h}, {r['max_disp']} disparities, {r['cpu_cores']} CPU cores, "
-             f"jax {r['jax']} ({r['backend']}), {r.get('machine', '')}", "",
+             f"jax {r['jax']} ({r['backend']}), {r.get('machine', '')}"
+             + (f"; kernels: {kernels_line(r)}" if "kernels" in r else ""), "",
              "All numbers from one run of `make bench` (`stereojax bench`); OpenCV StereoSGBM timed at the "
              "start and the end of the run (median), so ratios compare like with like.", "",
              "## Warm time per frame (after compilation), ratio to OpenCV SGBM", "",
@@ -339,6 +504,10 @@ def format_bench(r: dict) -> str:
         label = f"`--method best` = `{which}`" if is_best else f"`--weights {which}`"
         lines.append(f"| stereojax {label} | {_arch(prof['net'])} | {prof['evals_per_pixel']:g} | "
                      f"{chain['warm_s']:.2f} | {ratio(chain['warm_s'])} | {goal} |")
+        x = xla_chains.get(which, {})
+        if "warm_s" in x:
+            lines.append(f"| stereojax `--weights {which}`, JAX kernels (`--kernels xla`) | {_arch(prof['net'])} | "
+                         f"{prof['evals_per_pixel']:g} | {x['warm_s']:.2f} | {ratio(x['warm_s'])} | |")
     full = profiles["kitti2015"]
     ex = full["exact"]
     lines.append(f"| stereojax `kitti2015`, exact head (extrapolated from 8 disparities) | "
@@ -352,6 +521,10 @@ def format_bench(r: dict) -> str:
     if "warm_s" in census:
         lines.append(f"| stereojax census chain | | | {census['warm_s']:.2f} | {ratio(census['warm_s'])} | "
                      f"≤ {t['census_x_sgbm']:g}x: {target(census['warm_s'] <= t['census_x_sgbm'] * sg)} |")
+    x = xla_chains.get("census", {})
+    if "warm_s" in x:
+        lines.append(f"| stereojax census chain, JAX kernels (`--kernels xla`) | | | {x['warm_s']:.2f} | "
+                     f"{ratio(x['warm_s'])} | |")
     a = r.get("anchors")
     if a and a.get("pandora_s"):
         lines += ["", f"CNES Pandora {a.get('pandora_version', '')} (MC-CNN-fast, Middlebury weights, + libsgm), "
@@ -362,10 +535,14 @@ def format_bench(r: dict) -> str:
                   + (f" and `kitti2015_compact` {a['compact_s'] / a['pandora_s']:.2f}×" if "compact_s" in a else "")
                   + " ([anchors.md](anchors.md))."]
     if all("entries" in v for v in r["census_stages"].values()):
+        lines += ["", "## The targets of issue 51 (native CPU kernels), met or missed, and why", ""]
+        lines += native_targets(r)
+        both = bool(entry_rates(r, xla=True))
+        lines += ["", "## Cost entries per second of the band kernels" + (", native and JAX kernels side by side,"
+                                                                           if both else ",") + " against OpenCV's", ""]
+        lines += rate_table(r)
         lines += ["", "## The targets of issue 36 (one pass through the chain), met or missed, and why", ""]
         lines += chain_targets(r)
-        lines += ["", "## Cost entries per second of the band kernels, against OpenCV's", ""]
-        lines += rate_table(r)
     if "cascade" in chains and "cascade" in profiles:
         lines += ["", "## The targets of issue 38 (the full network where it matters), met or missed, and why", ""]
         lines += cascade_targets(r)
@@ -394,18 +571,41 @@ def format_bench(r: dict) -> str:
     for which in LEARNED:
         prof = profiles[which]
         ex = prof["exact"]
-        lines += ["", f"## Where the time of `{which}` goes (each stage jitted alone, warm)", "",
-                  "| stage | warm s | compile s |", "|---|---|---|"]
-        lines += [f"| {k} | {v['warm_s']:.2f} | {v['compile_s']:.1f} |" for k, v in _ordered(prof["stages"])]
+        lines += ["", f"## Where the time of `{which}` goes (each stage jitted alone, warm)", ""]
+        lines += stage_table(prof["stages"], prof.get("stages_xla"), _kernels(r), 2)
         lines += ["", f"Network: {prof['network_tflop'] * 1e3:.0f} GFLOP per frame, of which the head after its "
                   f"split first layer {prof['head_tflop'] * 1e3:.0f} GFLOP at {prof['evals_per_pixel']:g} evaluations "
                   f"per pixel; its exact head {ex['tflop']:.1f} TFLOP, {ex['warm_s']:.0f} s extrapolated "
                   f"({ex['gflop_s']:.0f} GFLOP/s; dense f32 matmul peak here {r['matmul_gflop_s']:.0f} GFLOP/s)."]
-    lines += ["", "## Census chain stages (each jitted alone, warm)", "", "| stage | warm s | compile s |", "|---|---|---|"]
-    lines += [f"| {k} | {v['warm_s']:.3f} | {v['compile_s']:.2f} |" for k, v in _ordered(r["census_stages"])]
+    lines += ["", "## Census chain stages (each jitted alone, warm)", ""]
+    lines += stage_table(r["census_stages"], r.get("census_stages_xla"), _kernels(r), 3)
     lines += ["", "Peak RSS of a process that compiles and runs the chain (no cache): " + ", ".join(
-        f"{m} {c.get('peak_rss_gib', float('nan')):.2f} GiB" for m, c in chains.items()) + ".", ""]
+        f"{m} {c.get('peak_rss_gib', float('nan')):.2f} GiB" for m, c in chains.items())
+        + ("; with the JAX kernels: " + ", ".join(f"{m} {c.get('peak_rss_gib', float('nan')):.2f} GiB"
+                                                  for m, c in xla_chains.items()) if xla_chains else "") + ".", ""]
     return "\n".join(lines)
+
+
+def stage_table(stages: dict, stages_xla: dict | None, kernels: str, digits: int) -> list[str]:
+    """A stage profile as a markdown table in the chain's order, with the sum of its stages; with
+    the JAX kernels' profile of the same run beside it when there is one (issue 51)."""
+    cw, cc = digits, digits - 1
+    if not stages_xla:
+        lines = ["| stage | warm s | compile s |", "|---|---|---|"]
+        lines += [f"| {k} | {v['warm_s']:.{cw}f} | {v['compile_s']:.{cc}f} |" for k, v in _ordered(stages)]
+        lines.append(f"| sum of the stages | {_sum_s(stages):.{cw}f} | "
+                     f"{sum(v['compile_s'] for v in stages.values()):.{cc}f} |")
+        return lines
+    lines = [f"| stage | {kernels} warm s | {kernels} compile s | xla warm s | xla compile s |", "|---|---|---|---|---|"]
+    names = [k for k, _ in _ordered({**stages_xla, **stages})]
+
+    def cells(d: dict, k: str) -> str:
+        v = d.get(k)
+        return f"{v['warm_s']:.{cw}f} | {v['compile_s']:.{cc}f}" if v else " | "
+    lines += [f"| {k} | {cells(stages, k)} | {cells(stages_xla, k)} |" for k in names]
+    lines.append(f"| sum of the stages | {_sum_s(stages):.{cw}f} | {sum(v['compile_s'] for v in stages.values()):.{cc}f} | "
+                 f"{_sum_s(stages_xla):.{cw}f} | {sum(v['compile_s'] for v in stages_xla.values()):.{cc}f} |")
+    return lines
 
 
 def write_report(results: Path = RESULTS) -> Path:

@@ -136,10 +136,14 @@ def speed_table(results: Path) -> str | None:
     bench = json.loads(bench_file.read_text())
     sgbm_s = bench["sgbm_padded_s"]
     lines = ["| method | warm s / frame | × SGBM |", "|---|---|---|", f"| OpenCV StereoSGBM | {sgbm_s:.3f} | 1× |"]
+    xla = bench.get("chains_xla") or {}     # the JAX kernels beside the native ones (issue 51)
     for chain, label in (("census", "census chain"), ("kitti2015_compact", "`kitti2015_compact`"),
                          ("kitti2015", "`best` = `kitti2015`")):
         s = bench["chains"][chain]["warm_s"]
         lines.append(f"| {label} | {s:.2f} | {s / sgbm_s:.0f}× |")
+        if "warm_s" in xla.get(chain, {}):
+            s = xla[chain]["warm_s"]
+            lines.append(f"| {label}, JAX kernels (`--kernels xla`) | {s:.2f} | {s / sgbm_s:.0f}× |")
     casc = bench["chains"].get("cascade", {})
     if "warm_s" in casc:
         s = casc["warm_s"]

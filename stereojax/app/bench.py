@@ -5,6 +5,11 @@ separately. The whole chain's peak memory is the peak resident set size of a fre
 process that compiles and runs it once (so nothing else in this process inflates it), and
 XLA's own buffer estimate of the compiled chain is reported beside it.
 
+The classical stages run the native C++ kernels where they loaded (``StereoConfig.kernels``
+"auto", :mod:`stereojax.kernels`); the census and ``kitti2015_compact`` chains are also timed with
+the JAX kernels (``kernels="xla"``) in the same run, stage by stage and whole, so that bench.md
+sets the two side by side (issue 51).
+
 This module measures and writes ``bench.json``; what the numbers are held against (the targets
 of the project's issues) and the markdown report live outside the library, in
 ``experiments/bench_report.py`` (``make bench`` runs both).
@@ -27,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from stereojax import chain
+from stereojax import chain, kernels
 from stereojax.app.baselines import sgbm_disparity
 from stereojax.config import preset
 from stereojax.data.datasets import DEFAULT_DATA, load_builtin_sample
@@ -140,19 +145,23 @@ def learned_setup(name: str, max_disp: int):
     return load_model(path), learned_config(path, max_disp), shipped_name(path)
 
 
-def chain_child(max_disp: int, method: str, repeats: int = 3, data=None) -> dict:
+def chain_child(max_disp: int, method: str, repeats: int = 3, data=None, kernels_setting: str | None = None) -> dict:
     """Compile and run the chain of ``method`` (best, a shipped model or a classical preset) on the bench
-    pair in this (fresh) process; warm time, compile time and peak RSS."""
+    pair in this (fresh) process; warm time, compile time, peak RSS and the kernels that ran
+    (``kernels_setting``: "auto", "native" or "xla" replaces the config's; None keeps it)."""
 
 
     if method in LEARNED or method == "best":
         model, cfg, _ = learned_setup(method, max_disp)
     else:
         model, cfg = None, preset(method, max_disp)
+    if kernels_setting is not None:
+        cfg = dataclasses.replace(cfg, kernels=kernels_setting).validate()
     left, right, src = _bench_pair(data=data)
     t = warm_chain(left, right, cfg, model, repeats)
     return {"warm_s": t["warm_s"], "compile_s": t["compile_s"],
-            "peak_rss_gib": peak_rss_gib(), "backend": jax.default_backend(), "source": src}
+            "peak_rss_gib": peak_rss_gib(), "backend": jax.default_backend(), "source": src,
+            "kernels": kernels.record(cfg.kernels)}
 
 
 def warm_chain(left, right, cfg, model=None, repeats: int = 3, confidence: bool = False, cascade=None) -> dict:
@@ -205,10 +214,11 @@ def _child(code: str, env=None) -> tuple[dict | None, float, str]:
     return result, wall, last_err
 
 
-def chain_memory(max_disp: int, method: str, data=None) -> dict:
-    """Warm time, compile time and peak RSS of the whole chain in a fresh child process."""
+def chain_memory(max_disp: int, method: str, data=None, kernels_setting: str | None = None) -> dict:
+    """Warm time, compile time and peak RSS of the whole chain in a fresh child process
+    (``kernels_setting``: as :func:`chain_child`; not for the cascade)."""
     child = f"cascade_child({max_disp}, data={data!r})" if method == "cascade" else \
-        f"chain_child({max_disp}, {method!r}, data={data!r})"
+        f"chain_child({max_disp}, {method!r}, data={data!r}, kernels_setting={kernels_setting!r})"
     code = f"import json;from stereojax.app.bench import chain_child, cascade_child;print(json.dumps({child}))"
     res, _, err = _child(code, {**os.environ, "STEREOJAX_CACHE_DIR": "off"})
     return res if res is not None else {"error": err or "child failed"}
@@ -283,15 +293,19 @@ def matmul_rate(n: int = 4096, repeats: int = 3) -> float:
 
 
 def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: int = 8,
-                    which: str = "best") -> dict:
+                    which: str = "best", xla: bool = False) -> dict:
     """Warm time of each stage of a learned chain (``which``: "best" or a name of :data:`LEARNED`),
     :func:`stage_timings`; and that network's exact head (every disparity) timed on
-    ``exact_disps`` disparities and scaled to ``max_disp`` (the work is linear in D)."""
+    ``exact_disps`` disparities and scaled to ``max_disp`` (the work is linear in D).
+    ``xla``: the stages are also timed with the JAX kernels (``stages_xla``; with the native
+    kernels loaded, else the default already is the JAX kernels and it is left out)."""
 
 
     model, cfg, name = learned_setup(which, max_disp)
     net, v = model.net, model.variables
     rows = stage_timings(left, right, cfg, model, repeats)
+    rows_xla = (stage_timings(left, right, dataclasses.replace(cfg, kernels="xla"), model, repeats)
+                if xla and kernels.native(cfg.kernels) else None)
     c = cfg.cost
     evals = c.candidates + c.unsure_share * (c.unsure_candidates - c.candidates)
     gl, gr = (jnp.asarray(a) for a in prepare_pair(left, right, cfg))
@@ -305,10 +319,13 @@ def learned_profile(left, right, max_disp: int, repeats: int = 2, exact_disps: i
     exact["gflop_s"] = exact["tflop"] * 1e3 / exact_s
     exact["chain_s"] = sum(r["warm_s"] for k, r in rows.items() if k not in NETWORK_STAGES) \
         + rows.get("tower features", {}).get("warm_s", 0.0) + exact_s
-    return {"model": name, "net": dataclasses.asdict(net), "config": cfg.to_dict(), "stages": rows,
-            "exact": exact, "evals_per_pixel": evals,
-            "network_tflop": network_flops(net, h, w, evals) / 1e12,
-            "head_tflop": (network_flops(net, h, w, evals) - network_flops(net, h, w, 0)) / 1e12}
+    out = {"model": name, "net": dataclasses.asdict(net), "config": cfg.to_dict(), "stages": rows,
+           "exact": exact, "evals_per_pixel": evals, "kernels": kernels.record(cfg.kernels),
+           "network_tflop": network_flops(net, h, w, evals) / 1e12,
+           "head_tflop": (network_flops(net, h, w, evals) - network_flops(net, h, w, 0)) / 1e12}
+    if rows_xla is not None:
+        out["stages_xla"] = rows_xla
+    return out
 
 
 #: the cascade of the bench (issue 38; experiments/results/cascade_curve.md): (student, full
@@ -375,6 +392,11 @@ def _kitti_files(left, right, work: Path, data=None) -> tuple[Path, Path]:
     return lp, rp
 
 
+#: the chains the bench also times with the JAX kernels, stage by stage and whole (issue 51):
+#: ``kitti2015``'s JAX-kernel profile would cost minutes, so it keeps the default kernels only
+XLA_CHAINS = ("census", "kitti2015_compact")
+
+
 def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -> dict:
     """Everything ``make bench`` reports, in one run on KITTI 2015 000021 (see README)."""
 
@@ -382,25 +404,37 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -
 
     cfg = preset("census", max_disp)
     left, right, src = _bench_pair(data=data)
+    # with the native kernels loaded, the census and compact chains are timed with both kernel sets
+    both = kernels.native(cfg.kernels)
     print(f"bench: {src}, {left.shape[1]}x{left.shape[0]}, {max_disp} disparities, "
-          f"{os.cpu_count()} CPU cores ({cpu_description()}), jax {jax.__version__} on {jax.default_backend()}",
+          f"{os.cpu_count()} CPU cores ({cpu_description()}), jax {jax.__version__} on {jax.default_backend()}; "
+          f"kernels: {kernels.describe(cfg.kernels)}" + ("; census and kitti2015_compact also with the JAX kernels"
+                                                         if both else ""),
           flush=True)
     sgbm = [sgbm_timings(left, right, max_disp, repeats)]
     print(f"  OpenCV StereoSGBM (3-way, {cv2.getNumThreads()} threads): {sgbm[0]}", flush=True)
     stages = stage_timings(left, right, cfg, repeats=repeats)
     for name, t in stages.items():
         print(f"  census {name:36s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
+    stages_xla = stage_timings(left, right, dataclasses.replace(cfg, kernels="xla"), repeats=repeats) if both else None
+    for name, t in (stages_xla or {}).items():
+        print(f"  census (xla) {name:30s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
     profiles = {}
     for which in LEARNED:
-        profiles[which] = prof = learned_profile(left, right, max_disp, which=which)
+        profiles[which] = prof = learned_profile(left, right, max_disp, which=which, xla=which in XLA_CHAINS)
         for name, t in prof["stages"].items():
             print(f"  {which} {name:45s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
+        for name, t in prof.get("stages_xla", {}).items():
+            print(f"  {which} (xla) {name:39s} warm {t['warm_s']:7.3f} s   compile {t['compile_s']:6.2f} s", flush=True)
         print(f"  {which}: exact head (extrapolated): {prof['exact']}", flush=True)
     profiles["cascade"] = cascade_profile(left, right, max_disp)
     print(f"  cascade (q = {CASCADE[2]:g}): {profiles['cascade']['stages']}", flush=True)
     chains = {m: chain_memory(max_disp, m, data) for m in (*LEARNED, "census", "cascade")}
     best = learned_setup("best", max_disp)[2]
     print(f"  whole chains, warm, fresh processes: {chains}", flush=True)
+    chains_xla = {m: chain_memory(max_disp, m, data, kernels_setting="xla") for m in XLA_CHAINS} if both else {}
+    if chains_xla:
+        print(f"  whole chains with the JAX kernels, warm, fresh processes: {chains_xla}", flush=True)
     demo = demo_memory(repeats)
     print(f"  make demo's computation (built-in Motorcycle pair, best, confidence), fresh process: {demo}",
           flush=True)
@@ -420,7 +454,13 @@ def run_bench(out_dir: Path, repeats: int = 3, max_disp: int = 228, data=None) -
               "sgbm_padded_s": sgbm_pad, "census_stages": stages, "profiles": profiles,
               "chains": chains, "best": best, "processes": procs, "demo": demo,
               "matmul_gflop_s": rate, "anchors": anchors,
-              "config_census": cfg.to_dict()}
+              "config_census": cfg.to_dict(),
+              # issue 51: which kernels the default chains ran, and the JAX kernels beside them
+              "kernels": kernels.record(cfg.kernels), "kernels_status": kernels.status()._asdict()}
+    if stages_xla is not None:
+        result["census_stages_xla"] = stages_xla
+    if chains_xla:
+        result["chains_xla"] = chains_xla
     write_json(out_dir / "bench.json", result)
     print(f"-> {out_dir}/bench.json (the report with the issues' targets: python experiments/bench_report.py)")
     return result

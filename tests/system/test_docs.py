@@ -64,3 +64,24 @@ def test_the_figures_the_readme_and_usage_quote_in_their_text_are_the_results_fi
     usage = (ROOT / "docs" / "usage.md").read_text()
     assert f"{compact} instead of {best} > 3 px" in usage
     assert "../shared/" not in (ROOT / "README.md").read_text().split("## Links")[1]   # no link out of the repo
+
+
+def test_speed_table_has_the_jax_kernel_rows_when_the_bench_timed_them(tmp_path):
+    """Issue 51: the README's speed table sets the JAX kernels' census and compact chains beside the
+    native ones when bench.json has them (``chains_xla``), and is as before without them."""
+    import json
+
+    report = _report()
+    bench = json.loads((ROOT / "experiments" / "results" / "bench.json").read_text())
+    bench.pop("chains_xla", None)
+    (tmp_path / "bench.json").write_text(json.dumps(bench))
+    before = report.speed_table(tmp_path)
+    assert "JAX kernels" not in before
+    sg = bench["sgbm_padded_s"]
+    bench["chains_xla"] = {"census": {"warm_s": 10 * sg}, "kitti2015_compact": {"warm_s": 40 * sg}}
+    (tmp_path / "bench.json").write_text(json.dumps(bench))
+    lines = report.speed_table(tmp_path).splitlines()
+    i = next(i for i, line in enumerate(lines) if line.startswith("| census chain |"))
+    assert lines[i + 1] == f"| census chain, JAX kernels (`--kernels xla`) | {10 * sg:.2f} | 10× |"
+    assert f"| `kitti2015_compact`, JAX kernels (`--kernels xla`) | {40 * sg:.2f} | 40× |" in lines
+    assert [line for line in lines if "JAX kernels" not in line] == before.splitlines()
