@@ -19,6 +19,7 @@ SOURCES = [
     "stereojax/matching_cost/census.cc",
     "stereojax/disparity/right_view.cc",
     "stereojax/validation/filling.cc",
+    "stereojax/matching_cost/ranking.cc",
 ]
 
 

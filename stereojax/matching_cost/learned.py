@@ -18,12 +18,15 @@ as the classical costs do). The volume is ``f32[H, W, D]`` in [0, 1], lower is b
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from stereojax.models.nets import (LearnedModel,  # noqa: F401  (LearnedModel: re-exported)
                                    MatchNet, NetConfig)
+from stereojax import kernels as kernels_mod
 from stereojax.volume import CostVolume, real_pixels
 
 
@@ -218,12 +221,28 @@ def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, conf
     return vol.at[ys[:, None], xs[:, None], idx].set(more_cost, mode="drop")
 
 
-def rank(vol: CostVolume, config) -> jax.Array:
-    """``i32[H, W, K2]``: the absolute disparities of lowest cost in the candidate chain's
-    CostVolume, best first (full range: :func:`rank_candidates`)."""
+def rank_xla(vol: CostVolume, config) -> jax.Array:
+    """The JAX kernel of :func:`rank`."""
     if not vol.banded:
         return rank_candidates(vol.cost, config)
     return (jax.lax.top_k(-vol.cost, _ks(config)[1])[1] + vol.offset[..., None]).astype(jnp.int32)
+
+
+def rank_native(vol: CostVolume, config) -> jax.Array:
+    """The native kernel (``ranking.cc``) of :func:`rank_xla`: the same order, ties included."""
+    h, w, _ = vol.cost.shape
+    call = jax.ffi.ffi_call("stereojax_rank", jax.ShapeDtypeStruct((h, w, _ks(config)[1]), jnp.int32),
+                            vmap_method="sequential")
+    return call(vol.cost.astype(jnp.float32), vol.offset.astype(jnp.int32), banded=np.int32(bool(vol.banded)),
+                threads=np.int32(kernels_mod.threads()))
+
+
+def rank(vol: CostVolume, config) -> jax.Array:
+    """``i32[H, W, K2]``: the absolute disparities of lowest cost in the candidate chain's
+    CostVolume, best first (full range: :func:`rank_candidates`), with the kernel of
+    ``config.kernels`` (:mod:`stereojax.kernels`: native C++ on the CPU, else ``lax.top_k``)."""
+    return kernels_mod.select(config.kernels, functools.partial(rank_native, config=config),
+                              functools.partial(rank_xla, config=config), vol)
 
 
 def band_volume(net: NetConfig, variables, fl, fr, ranked, config, offset=None, valid=None):
