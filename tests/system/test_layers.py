@@ -11,7 +11,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[2] / "stereojax"
 
 #: each part of the package and the parts it may import (itself always allowed)
-BASE = {"errors", "config", "volume", "devices", "progress", "interrupt", "metrics", "data"}
+BASE = {"errors", "config", "volume", "devices", "progress", "interrupt", "metrics", "data", "kernels"}
 STEPS = {"matching_cost", "aggregation", "optimization", "disparity", "validation", "refinement", "filters"}
 ALLOWED = {
     **{b: BASE for b in BASE},
