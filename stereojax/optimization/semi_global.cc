@@ -45,8 +45,6 @@ struct Ctx {
   bool banded, adaptive;
   float thr;
   Pen pen[3];  // horizontal, vertical, diagonal
-  int m;       // margin of BIG each side of a stored line of path costs
-  int stride;  // k + 2 m
 };
 
 // One path step of one pixel; returns min_k of the new path costs. prev points at the
@@ -98,17 +96,37 @@ SJ_INLINE float fresh(const float* __restrict c, float* __restrict out, int k) {
   return nm;
 }
 
-// A line of pixels' path costs, each K entries with BIG margins, their minima and band offsets.
+// A line of pixels' path costs (K entries each), their minima and band offsets. A path keeps one
+// line and overwrites it in place, row after row: each pixel's predecessor is first copied into
+// a small buffer with BIG margins (Ext), which also serves the band shift.
 struct Line {
   std::vector<float> buf;
   std::vector<float> mins;
   std::vector<int32_t> offs;
-  void init(int n, const Ctx& cx) {
-    buf.assign(static_cast<size_t>(n) * cx.stride, kBig);
+  int k = 0;
+  void init(int n, int k_) {
+    k = k_;
+    buf.assign(static_cast<size_t>(n) * k, 0.f);
     mins.assign(n, 0.f);
     offs.assign(n, 0);
   }
-  float* at(int i, const Ctx& cx) { return buf.data() + static_cast<size_t>(i) * cx.stride + cx.m; }
+  float* at(int i) { return buf.data() + static_cast<size_t>(i) * k; }
+};
+
+// The predecessor's K entries with K + 2 BIG entries each side (a band shift |s| <= K + 1 then
+// reads BIG where it leaves the predecessor's band).
+struct Ext {
+  std::vector<float> buf;
+  int k = 0;
+  void init(int k_) {
+    k = k_;
+    buf.assign(3 * static_cast<size_t>(k) + 4, kBig);
+  }
+  const float* load(const float* __restrict prev) {
+    float* __restrict mid = buf.data() + k + 2;
+    for (int j = 0; j < k; ++j) mid[j] = prev[j];
+    return mid;
+  }
 };
 
 SJ_INLINE bool big_step(float a, float b, float thr) { return std::fabs(a - b) >= thr; }
@@ -168,12 +186,11 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
   const size_t row_len = static_cast<size_t>(w) * k;
   const int n_row_paths = cx.dirs == 8 ? 3 : 1;
   Line sum;  // this sweep's paths of the row, summed; the horizontal path writes it first
-  sum.init(w, cx);
-  Line prev[3], cur[3];
-  for (int p = 0; p < n_row_paths; ++p) {
-    prev[p].init(w, cx);
-    cur[p].init(w, cx);
-  }
+  sum.init(w, k);
+  Line line[3];
+  for (int p = 0; p < n_row_paths; ++p) line[p].init(w, k);
+  Ext ext;
+  ext.init(k);
   RightPen pen_h, pen_v;
   if (cx.adaptive) {
     pen_h.init(w + cx.max_disp);
@@ -190,7 +207,7 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
 
     // horizontal path over the real columns [c0, c1), every row; 0 elsewhere
     for (int x = 0; x < w; ++x)
-      if (x < cx.c0 || x >= cx.c1) std::fill(sum.at(x, cx), sum.at(x, cx) + k, 0.f);
+      if (x < cx.c0 || x >= cx.c1) std::fill(sum.at(x), sum.at(x) + k, 0.f);
     if (cx.c1 > cx.c0) {
       if (adaptive) pen_h.fill(cx, y, 0, dx, cx.pen[0]);
       float m = 0.f;
@@ -198,7 +215,7 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
       for (int t = 0; t < cx.c1 - cx.c0; ++t) {
         const int x = dx == 1 ? cx.c0 + t : cx.c1 - 1 - t;
         const float* c = crow + static_cast<size_t>(x) * k;
-        float* o = sum.at(x, cx);
+        float* o = sum.at(x);
         const int xo = orow[x];
         float nm;
         if (t == 0) {
@@ -208,10 +225,11 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
           const int bl = big_step(lrow[x], lrow[xp], cx.thr);
           const int s = band_shift(cx, xo, op);
           const int at = w - 1 - x + xo;
+          const float* pv = ext.load(sum.at(xp));
           if (adaptive)
-            nm = step(sum.at(xp, cx), s, m, c, o, k, pen_h.p1[bl].data() + at, pen_h.p2[bl].data() + at, 0.f, 0.f);
+            nm = step(pv, s, m, c, o, k, pen_h.p1[bl].data() + at, pen_h.p2[bl].data() + at, 0.f, 0.f);
           else
-            nm = step(sum.at(xp, cx), s, m, c, o, k, nullptr, nullptr, cx.pen[0].p1[0], cx.pen[0].p2[0]);
+            nm = step(pv, s, m, c, o, k, nullptr, nullptr, cx.pen[0].p1[0], cx.pen[0].p2[0]);
         }
         m = nm;
         op = xo;
@@ -228,11 +246,13 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
       for (int p = 0; p < n_row_paths; ++p) {
         const int sx = p == 0 ? 0 : (p == 1 ? 1 : -1);  // the predecessor of x is x - sx
         const Pen& pen = p == 0 ? cx.pen[1] : cx.pen[2];
-        Line& pl = prev[p];
-        Line& cl = cur[p];
-        for (int x = 0; x < w; ++x) {
+        Line& ln = line[p];
+        // in place: a diagonal from the left (sx = 1) runs right to left, so that x - 1 still
+        // holds the previous row when x reads it; from the right, left to right
+        for (int t = 0; t < w; ++t) {
+          const int x = sx == 1 ? w - 1 - t : t;
           const float* c = crow + static_cast<size_t>(x) * k;
-          float* o = cl.at(x, cx);
+          float* o = ln.at(x);
           const int xo = orow[x];
           const int xp = x - sx;
           float nm;
@@ -241,22 +261,22 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
             nm = fresh(c, o, k);
           } else {
             const int bl = yp_in && big_step(lrow[x], lprev[xp], cx.thr);
-            const int s = band_shift(cx, xo, pl.offs[xp]);
+            const int s = band_shift(cx, xo, ln.offs[xp]);
+            const float* pv = ext.load(ln.at(xp));
+            const float pm = ln.mins[xp];
             if (sx == 0 && adaptive) {
               const int at = w - 1 - x + xo;
-              nm = step(pl.at(xp, cx), s, pl.mins[xp], c, o, k, pen_v.p1[bl].data() + at, pen_v.p2[bl].data() + at,
-                        0.f, 0.f);
+              nm = step(pv, s, pm, c, o, k, pen_v.p1[bl].data() + at, pen_v.p2[bl].data() + at, 0.f, 0.f);
             } else {
               const int b = adaptive ? bl : 0;  // diagonals count the left image's step only
-              nm = step(pl.at(xp, cx), s, pl.mins[xp], c, o, k, nullptr, nullptr, pen.p1[b], pen.p2[b]);
+              nm = step(pv, s, pm, c, o, k, nullptr, nullptr, pen.p1[b], pen.p2[b]);
             }
           }
-          cl.mins[x] = nm;
-          cl.offs[x] = xo;
-          float* __restrict sm = sum.at(x, cx);
+          ln.mins[x] = nm;
+          ln.offs[x] = xo;
+          float* __restrict sm = sum.at(x);
           for (int j = 0; j < k; ++j) sm[j] += o[j];
         }
-        std::swap(prev[p], cur[p]);
       }
       started = true;
     }
@@ -265,15 +285,13 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
     float* orow_out = cx.out + static_cast<size_t>(y) * row_len;
     std::lock_guard<std::mutex> lock(merge.locks[y]);
     if (!merge.seen[y]) {
-      for (int x = 0; x < w; ++x) std::memcpy(orow_out + static_cast<size_t>(x) * k, sum.at(x, cx), k * sizeof(float));
+      std::memcpy(orow_out, sum.at(0), row_len * sizeof(float));
       merge.seen[y] = 1;
     } else {
       const float dirs = static_cast<float>(cx.dirs);
-      for (int x = 0; x < w; ++x) {
-        const float* __restrict sm = sum.at(x, cx);
-        float* __restrict dst = orow_out + static_cast<size_t>(x) * k;
-        for (int j = 0; j < k; ++j) dst[j] = (dst[j] + sm[j]) / dirs;
-      }
+      const float* __restrict sm = sum.at(0);
+      float* __restrict dst = orow_out;
+      for (size_t j = 0; j < row_len; ++j) dst[j] = (dst[j] + sm[j]) / dirs;
     }
   }
 }
@@ -317,8 +335,6 @@ ffi::Error SgmImpl(ffi::Buffer<ffi::F32> cost, ffi::Buffer<ffi::S32> offset, ffi
       cx.pen[kind].p1[n] = penalties[kind * 6 + n];
       cx.pen[kind].p2[n] = penalties[kind * 6 + 3 + n];
     }
-  cx.m = cx.banded ? cx.k + 2 : 1;
-  cx.stride = cx.k + 2 * cx.m;
   Merge merge(cx.h);
   if (threads >= 2) {
     std::thread up([&] { sweep(cx, -1, merge); });
