@@ -128,3 +128,24 @@ def random_pair(shape=(9, 14), seed: int = 0):
     """A small pair of random grey images (float32, 0..255): the kernels' reference tests."""
     rng = np.random.default_rng(seed)
     return (rng.integers(0, 256, shape).astype(np.float32), rng.integers(0, 256, shape).astype(np.float32))
+
+
+def require_native():
+    """Fail the calling test unless the native kernels (stereojax/_native*.so) loaded, so that a
+    native-vs-JAX test never passes by comparing the JAX kernels with themselves; with
+    ``STEREOJAX_NATIVE_SKIP=1`` in the environment (the build was skipped on purpose) it skips."""
+    import pytest
+
+    from stereojax import kernels
+
+    st = kernels.status()
+    if st.loaded:
+        import jax
+
+        if jax.default_backend() != "cpu":   # platform_dependent picks the JAX kernels there
+            pytest.skip(f"the native kernels run on the CPU only; the backend is {jax.default_backend()}")
+        return
+    if os.environ.get("STEREOJAX_NATIVE_SKIP") == "1":
+        pytest.skip(f"native kernels not loaded, STEREOJAX_NATIVE_SKIP=1 ({st.reason})")
+    pytest.fail(f"the native kernels did not load: {st.reason} (set STEREOJAX_NATIVE_SKIP=1 to skip "
+                "the native tests where the extension is not built on purpose)", pytrace=False)
