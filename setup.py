@@ -20,6 +20,7 @@ SOURCES = [
     "stereojax/disparity/right_view.cc",
     "stereojax/validation/filling.cc",
     "stereojax/matching_cost/ranking.cc",
+    "stereojax/volume.cc",
 ]
 
 

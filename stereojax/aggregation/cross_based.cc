@@ -7,8 +7,8 @@
 // outside q's band, q counts with p's own value (horizontal: p's cost; vertical: p's horizontal
 // mean times q's horizontal arm count). The full range is off = 0, where no entry is outside.
 // The terms are added in the order of the JAX kernel (arm offsets ascending), so the two agree
-// to the last bit. Rows run on all threads; each thread keeps the horizontal sums of the rows
-// its vertical sums read in a ring of 2 arm + 1 rows (no volume-sized scratch).
+// to the last bit. Rows run on all threads; each thread keeps the horizontal sums that its
+// vertical sums read in a ring of 2 arm + 1 rows of a block of columns (no volume-sized scratch).
 #include <algorithm>
 #include <cstring>
 #include <vector>
@@ -58,14 +58,14 @@ struct Pass {
   bool banded;
 };
 
-// The horizontal sums of row y into hrow [W, K].
+// The horizontal sums of row y, columns [xb, xe), into hrow [xe - xb, K].
 template <int KC>
-SJ_INLINE void horizontal_row(const Pass& ps, int y, float* __restrict hrow) {
+SJ_INLINE void horizontal_row(const Pass& ps, int y, int xb, int xe, float* __restrict hrow) {
   const int w = ps.w, k = KC > 0 ? KC : ps.k;
-  for (int x = 0; x < w; ++x) {
+  for (int x = xb; x < xe; ++x) {
     const size_t p = static_cast<size_t>(y) * w + x;
     const float* nu = ps.src + p * k;
-    float* __restrict acc = hrow + static_cast<size_t>(x) * k;
+    float* __restrict acc = hrow + static_cast<size_t>(x - xb) * k;
     for (int j = 0; j < k; ++j) acc[j] = 0.f;
     const int op = ps.off[p];
     // the arms of padding pixels (grey BIG) may run past the image: read inside it only
@@ -77,38 +77,43 @@ SJ_INLINE void horizontal_row(const Pass& ps, int y, float* __restrict hrow) {
   }
 }
 
-// Rows [y0, y1): the horizontal sums of rows y0 - reach .. y1 + reach go through a ring of
-// 2 reach + 1 rows (this thread's own), the vertical sums of each row read it.
+// Rows [y0, y1), in blocks of columns: for each block, the horizontal sums of rows
+// y0 - reach .. y1 + reach go through a ring of 2 reach + 1 rows of the block (small enough to
+// stay in the core's L2 cache), and the vertical sums of each row read them there.
 template <int KC>
 SJ_INLINE void cbca_rows_k(const Pass& ps, int y0, int y1) {
   const int w = ps.w, k = KC > 0 ? KC : ps.k, span = 2 * ps.reach + 1;
-  const size_t row_len = static_cast<size_t>(w) * k;
-  std::vector<float> ring(row_len * span);
+  const int block = std::max(8, std::min(w, static_cast<int>((192 * 1024) / (sizeof(float) * span * k))));
+  const size_t blk_len = static_cast<size_t>(block) * k;
+  std::vector<float> ring(blk_len * span);
   std::vector<float> acc(k), nrm(k);
-  auto slot = [&](int row) { return ring.data() + static_cast<size_t>(row % span) * row_len; };
-  int next = std::max(0, y0 - ps.reach);  // the next row whose horizontal sums are due
-  for (int y = y0; y < y1; ++y) {
-    const int need = std::min(ps.h, y + ps.reach + 1);
-    for (; next < need; ++next) horizontal_row<KC>(ps, next, slot(next));
-    for (int x = 0; x < w; ++x) {
-      const size_t p = static_cast<size_t>(y) * w + x;
-      const float* hp = slot(y) + static_cast<size_t>(x) * k;
-      const float hl = static_cast<float>(ps.a.left[p] + ps.a.right[p] + 1);
-      for (int j = 0; j < k; ++j) nrm[j] = hp[j] / hl;
-      for (int j = 0; j < k; ++j) acc[j] = 0.f;
-      const int op = ps.off[p];
-      float support = 0.f;
-      const int q0 = std::max(0, y - ps.a.up[p]), q1 = std::min(ps.h - 1, y + ps.a.down[p]);
-      for (int q = q0; q <= q1; ++q) {
-        const size_t pq = static_cast<size_t>(q) * w + x;
-        const float wq = static_cast<float>(ps.a.left[pq] + ps.a.right[pq] + 1);
-        support += wq;
-        add_band_weighted(acc.data(), slot(q) + static_cast<size_t>(x) * k, nrm.data(), wq, k,
-                          ps.banded ? op - ps.off[pq] : 0);
+  auto slot = [&](int row) { return ring.data() + static_cast<size_t>(row % span) * blk_len; };
+  for (int xb = 0; xb < w; xb += block) {
+    const int xe = std::min(w, xb + block);
+    int next = std::max(0, y0 - ps.reach);  // the next row whose horizontal sums are due
+    for (int y = y0; y < y1; ++y) {
+      const int need = std::min(ps.h, y + ps.reach + 1);
+      for (; next < need; ++next) horizontal_row<KC>(ps, next, xb, xe, slot(next));
+      for (int x = xb; x < xe; ++x) {
+        const size_t p = static_cast<size_t>(y) * w + x;
+        const size_t xi = static_cast<size_t>(x - xb) * k;
+        const float* hp = slot(y) + xi;
+        const float hl = static_cast<float>(ps.a.left[p] + ps.a.right[p] + 1);
+        for (int j = 0; j < k; ++j) nrm[j] = hp[j] / hl;
+        for (int j = 0; j < k; ++j) acc[j] = 0.f;
+        const int op = ps.off[p];
+        float support = 0.f;
+        const int q0 = std::max(0, y - ps.a.up[p]), q1 = std::min(ps.h - 1, y + ps.a.down[p]);
+        for (int q = q0; q <= q1; ++q) {
+          const size_t pq = static_cast<size_t>(q) * w + x;
+          const float wq = static_cast<float>(ps.a.left[pq] + ps.a.right[pq] + 1);
+          support += wq;
+          add_band_weighted(acc.data(), slot(q) + xi, nrm.data(), wq, k, ps.banded ? op - ps.off[pq] : 0);
+        }
+        const float norm = 1.0f / support;
+        float* o = ps.dst + p * k;
+        for (int j = 0; j < k; ++j) o[j] = acc[j] * norm;
       }
-      const float norm = 1.0f / support;
-      float* o = ps.dst + p * k;
-      for (int j = 0; j < k; ++j) o[j] = acc[j] * norm;
     }
   }
 }
