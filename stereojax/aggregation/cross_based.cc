@@ -99,7 +99,8 @@ SJ_INLINE void cbca_rows_k(const Pass& ps, int y0, int y1) {
         const size_t xi = static_cast<size_t>(x - xb) * k;
         const float* hp = slot(y) + xi;
         const float hl = static_cast<float>(ps.a.left[p] + ps.a.right[p] + 1);
-        for (int j = 0; j < k; ++j) nrm[j] = hp[j] / hl;
+        const float inv_hl = 1.0f / hl;  // as XLA compiles hs / h_len: times the reciprocal
+        for (int j = 0; j < k; ++j) nrm[j] = hp[j] * inv_hl;
         for (int j = 0; j < k; ++j) acc[j] = 0.f;
         const int op = ps.off[p];
         float support = 0.f;
