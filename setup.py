@@ -21,6 +21,7 @@ SOURCES = [
     "stereojax/validation/filling.cc",
     "stereojax/matching_cost/ranking.cc",
     "stereojax/volume.cc",
+    "stereojax/disparity/winner_takes_all.cc",
 ]
 
 

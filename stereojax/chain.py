@@ -239,7 +239,7 @@ def _limits(st: State, config) -> State:
 
 
 def _wta(st: State, config) -> State:
-    disp_wta = winner_takes_all.wta_volume(st.vol)
+    disp_wta = winner_takes_all.wta_volume(st.vol, config.kernels)
     return st.replace(disp_wta=disp_wta, disp=disp_wta.astype(jnp.float32))
 
 

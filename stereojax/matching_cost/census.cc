@@ -14,49 +14,62 @@
 namespace stereojax {
 namespace {
 
-// NW census words per pixel; NW = 2 (the 7x9 window's 62 bits) reads them as one 64-bit word
-template <int NW>
-SJ_INLINE int hamming(const uint32_t* a, const uint32_t* b, int nw) {
-  if (NW == 2) {
-    uint64_t u, v;
-    std::memcpy(&u, a, 8);
-    std::memcpy(&v, b, 8);
-    return __builtin_popcountll(u ^ v);
-  }
-  int bits = 0;
-  for (int t = 0; t < (NW > 0 ? NW : nw); ++t) bits += __builtin_popcount(a[t] ^ b[t]);
-  return bits;
+// popcount of 32 bits in plain integer steps, which the compiler vectorises over k (a popcount
+// instruction works on one word at a time; vector popcounts need AVX-512 VPOPCNTDQ)
+SJ_INLINE uint32_t pop32(uint32_t v) {
+  v = v - ((v >> 1) & 0x55555555u);
+  v = (v & 0x33333333u) + ((v >> 2) & 0x33333333u);
+  v = (v + (v >> 4)) & 0x0F0F0F0Fu;
+  return (v * 0x01010101u) >> 24;
 }
 
+// One row. The right row's words are first laid out reversed and word by word (rev[t][i] =
+// word t of column W - 1 - i), so that entry k of the pixel x (match column x - off - k) reads
+// rev[t][W - 1 - x + off + k], ascending in k.
 template <int NW>
-SJ_INLINE void census_row(const uint32_t* cl, const uint32_t* rrow, const int32_t* off, float* out, int w, int k,
-                          int nw, bool worst, float scale) {
+SJ_INLINE void census_row(const uint32_t* __restrict cl, const uint32_t* __restrict rrow, const int32_t* off,
+                          float* __restrict out, int w, int k, int nw_rt, bool worst, float scale,
+                          std::vector<uint32_t>& rev) {
+  const int nw = NW > 0 ? NW : nw_rt;
+  rev.resize(static_cast<size_t>(nw) * w);
+  for (int t = 0; t < nw; ++t)
+    for (int i = 0; i < w; ++i) rev[static_cast<size_t>(t) * w + i] = rrow[static_cast<size_t>(w - 1 - i) * nw + t];
   for (int x = 0; x < w; ++x) {
     const uint32_t* a = cl + static_cast<size_t>(x) * nw;
-    float* o = out + static_cast<size_t>(x) * k;
+    float* __restrict o = out + static_cast<size_t>(x) * k;
     const int base = x - off[x];
-    const int inside = std::min(k, base + 1);  // entries j < inside have their match in the image
-    for (int j = 0; j < inside; ++j)
-      o[j] = static_cast<float>(hamming<NW>(a, rrow + static_cast<size_t>(base - j) * nw, nw)) * scale;
+    const int inside = std::max(0, std::min(k, base + 1));  // entries j < inside match inside the image
+    const int start = w - 1 - base;
+    for (int j = 0; j < inside; ++j) o[j] = 0.f;
+    for (int t = 0; t < nw; ++t) {
+      const uint32_t at = a[t];
+      const uint32_t* __restrict r = rev.data() + static_cast<size_t>(t) * w + start;
+      for (int j = 0; j < inside; ++j) o[j] += static_cast<float>(pop32(at ^ r[j]));
+    }
+    for (int j = 0; j < inside; ++j) o[j] *= scale;
     if (inside < k) {  // the match leaves the image: column 0 repeats (or "worst": INVALID_COST)
-      const float edge = worst ? 1.0f : static_cast<float>(hamming<NW>(a, rrow, nw)) * scale;
-      for (int j = std::max(inside, 0); j < k; ++j) o[j] = edge;
+      float edge = 1.0f;
+      if (!worst) {
+        int bits = 0;
+        for (int t = 0; t < nw; ++t) bits += static_cast<int>(pop32(a[t] ^ rrow[t]));
+        edge = static_cast<float>(bits) * scale;
+      }
+      for (int j = inside; j < k; ++j) o[j] = edge;
     }
   }
 }
 
 SJ_CLONES void census_rows(const uint32_t* cl, const uint32_t* cr, const int32_t* off, float* out, int w, int k,
                            int nw, bool worst, float scale, int y0, int y1) {
+  std::vector<uint32_t> rev;
   for (int y = y0; y < y1; ++y) {
     const size_t p = static_cast<size_t>(y) * w;
     const uint32_t* a = cl + p * nw;
     const uint32_t* b = cr + p * nw;
     if (nw == 2)
-      census_row<2>(a, b, off + p, out + p * k, w, k, nw, worst, scale);
-    else if (nw == 1)
-      census_row<1>(a, b, off + p, out + p * k, w, k, nw, worst, scale);
+      census_row<2>(a, b, off + p, out + p * k, w, k, nw, worst, scale, rev);
     else
-      census_row<0>(a, b, off + p, out + p * k, w, k, nw, worst, scale);
+      census_row<0>(a, b, off + p, out + p * k, w, k, nw, worst, scale, rev);
   }
 }
 
