@@ -17,12 +17,16 @@ namespace ffi = xla::ffi;
 // stereojax.volume.BIG: the cost of an entry outside a band, as f32
 constexpr float kBig = 1e9f;
 
-// The hot functions are compiled for AVX-512, AVX2 and the baseline of the target, and the
+// The hot functions are compiled for AVX-512, AVX2 (with POPCNT) and the baseline of the target, and the
 // loader picks one at run time (GCC/Clang ifunc); elsewhere (aarch64, other compilers) one
 // portable build that the compiler vectorises for the baseline.
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__)) && !defined(STEREOJAX_NO_CLONES) && \
     !defined(STEREOJAX_MARCH_NATIVE)
+#if defined(__clang__)
 #define SJ_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else  // GCC: the x86-64 levels (v3: AVX2, FMA, BMI2, POPCNT; v4: AVX-512)
+#define SJ_CLONES __attribute__((target_clones("arch=x86-64-v4", "arch=x86-64-v3", "default")))
+#endif
 #else
 #define SJ_CLONES
 #endif

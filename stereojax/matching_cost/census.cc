@@ -29,24 +29,36 @@ SJ_INLINE uint32_t pop32(uint32_t v) {
 template <int NW>
 SJ_INLINE void census_row(const uint32_t* __restrict cl, const uint32_t* __restrict rrow, const int32_t* off,
                           float* __restrict out, int w, int k, int nw_rt, bool worst, float scale,
-                          std::vector<uint32_t>& rev) {
+                          std::vector<uint32_t>& rev, std::vector<uint64_t>& rev64) {
   const int nw = NW > 0 ? NW : nw_rt;
-  rev.resize(static_cast<size_t>(nw) * w);
-  for (int t = 0; t < nw; ++t)
-    for (int i = 0; i < w; ++i) rev[static_cast<size_t>(t) * w + i] = rrow[static_cast<size_t>(w - 1 - i) * nw + t];
+  if (NW == 2) {  // both words as one 64-bit word: one popcount instruction per entry
+    rev64.resize(w);
+    for (int i = 0; i < w; ++i) std::memcpy(&rev64[i], rrow + static_cast<size_t>(w - 1 - i) * 2, 8);
+  } else {
+    rev.resize(static_cast<size_t>(nw) * w);
+    for (int t = 0; t < nw; ++t)
+      for (int i = 0; i < w; ++i) rev[static_cast<size_t>(t) * w + i] = rrow[static_cast<size_t>(w - 1 - i) * nw + t];
+  }
   for (int x = 0; x < w; ++x) {
     const uint32_t* a = cl + static_cast<size_t>(x) * nw;
     float* __restrict o = out + static_cast<size_t>(x) * k;
     const int base = x - off[x];
     const int inside = std::max(0, std::min(k, base + 1));  // entries j < inside match inside the image
     const int start = w - 1 - base;
-    for (int j = 0; j < inside; ++j) o[j] = 0.f;
-    for (int t = 0; t < nw; ++t) {
-      const uint32_t at = a[t];
-      const uint32_t* __restrict r = rev.data() + static_cast<size_t>(t) * w + start;
-      for (int j = 0; j < inside; ++j) o[j] += static_cast<float>(pop32(at ^ r[j]));
+    if (NW == 2) {  // one pass (the sum of two small integers is exact, as the JAX kernel's f32 sum)
+      uint64_t av;
+      std::memcpy(&av, a, 8);
+      const uint64_t* __restrict r = rev64.data() + start;
+      for (int j = 0; j < inside; ++j) o[j] = static_cast<float>(__builtin_popcountll(av ^ r[j])) * scale;
+    } else {
+      for (int j = 0; j < inside; ++j) o[j] = 0.f;
+      for (int t = 0; t < nw; ++t) {
+        const uint32_t at = a[t];
+        const uint32_t* __restrict r = rev.data() + static_cast<size_t>(t) * w + start;
+        for (int j = 0; j < inside; ++j) o[j] += static_cast<float>(static_cast<int>(pop32(at ^ r[j])));
+      }
+      for (int j = 0; j < inside; ++j) o[j] *= scale;
     }
-    for (int j = 0; j < inside; ++j) o[j] *= scale;
     if (inside < k) {  // the match leaves the image: column 0 repeats (or "worst": INVALID_COST)
       float edge = 1.0f;
       if (!worst) {
@@ -62,14 +74,15 @@ SJ_INLINE void census_row(const uint32_t* __restrict cl, const uint32_t* __restr
 SJ_CLONES void census_rows(const uint32_t* cl, const uint32_t* cr, const int32_t* off, float* out, int w, int k,
                            int nw, bool worst, float scale, int y0, int y1) {
   std::vector<uint32_t> rev;
+  std::vector<uint64_t> rev64;
   for (int y = y0; y < y1; ++y) {
     const size_t p = static_cast<size_t>(y) * w;
     const uint32_t* a = cl + p * nw;
     const uint32_t* b = cr + p * nw;
     if (nw == 2)
-      census_row<2>(a, b, off + p, out + p * k, w, k, nw, worst, scale, rev);
+      census_row<2>(a, b, off + p, out + p * k, w, k, nw, worst, scale, rev, rev64);
     else
-      census_row<0>(a, b, off + p, out + p * k, w, k, nw, worst, scale, rev);
+      census_row<0>(a, b, off + p, out + p * k, w, k, nw, worst, scale, rev, rev64);
   }
 }
 
