@@ -103,3 +103,13 @@ def pair(tmp_path):
     from .robustness_helpers import _write_pair
 
     return _write_pair(tmp_path / "in")
+
+
+def pytest_collection_modifyitems(config, items):
+    """A test module with ``FAST_CASES`` (a set of test names with their parameters) runs those in
+    ``make test-fast`` and marks its other cases slow (they still run in ``make test``): the
+    native-vs-JAX equality grids (issue 51) cover every combination only in the whole suite."""
+    for item in items:
+        fast = getattr(getattr(item, "module", None), "FAST_CASES", None)
+        if fast is not None and item.name not in fast and item.originalname != item.name:
+            item.add_marker(pytest.mark.slow)

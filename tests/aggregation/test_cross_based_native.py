@@ -24,6 +24,14 @@ from ..helpers import require_native
 TAU = 20.0
 
 
+#: the cases of make test-fast (tests/conftest.py); the others are marked slow
+FAST_CASES = {
+    'test_cbca_native_equals_jax_on_real_crops[coarse48-padded-2-5]',
+    'test_cbca_native_equals_jax_on_real_crops[full-unpadded-1-10]',
+    'test_cbca_native_equals_jax_on_real_crops[random-padded-1-5]',
+}
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _native():
     require_native()

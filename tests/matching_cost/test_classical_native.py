@@ -14,6 +14,15 @@ from .. import native_cases as nc
 from ..helpers import require_native
 
 
+#: the cases of make test-fast (tests/conftest.py); the others are marked slow
+FAST_CASES = {
+    'test_census_cost_native_equals_jax_on_real_crops[right-worst-padded]',
+    'test_census_cost_native_equals_jax_on_real_crops[left-replicate-unpadded]',
+    'test_census_band_native_equals_jax_on_real_crops[coarse48-worst-padded]',
+    'test_census_band_native_equals_jax_on_real_crops[random-replicate-unpadded]',
+}
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _native():
     require_native()

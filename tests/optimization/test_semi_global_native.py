@@ -18,6 +18,15 @@ from .. import native_cases as nc
 from ..helpers import require_native
 
 
+#: the cases of make test-fast (tests/conftest.py); the others are marked slow
+FAST_CASES = {
+    'test_sgm_volume_native_equals_jax_on_real_crops[coarse-padded-4paths-adaptive]',
+    'test_sgm_volume_native_equals_jax_on_real_crops[full-unpadded-8paths-adaptive-vf1.5]',
+    'test_sgm_volume_native_equals_jax_at_the_shipped_band_width[coarse48-padded-4paths-adaptive]',
+    'test_sgm_full_range_with_real_bounds_native_equals_jax[mirrored-8paths-plain-vf2]',
+}
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _native():
     require_native()
