@@ -22,6 +22,7 @@ SOURCES = [
     "stereojax/matching_cost/ranking.cc",
     "stereojax/volume.cc",
     "stereojax/disparity/winner_takes_all.cc",
+    "stereojax/validation/confidence_measure.cc",
 ]
 
 

@@ -284,7 +284,7 @@ def _lr_fill(st: State, config) -> State:
 
 def _confidence(st: State, config) -> State:
     return st.replace(confidence=confidence_measure.confidence_volume(st.vol, st.disp_wta, st.disp_right,
-                                                          config.refine.lr_tolerance))
+                                                                      config.refine.lr_tolerance, config.kernels))
 
 
 def _subpixel(st: State, config) -> State:

@@ -361,7 +361,7 @@ def cascade_profile(left, right, max_disp: int, share: float = CASCADE[2], repea
     lp, rp = pad_to(gl, chain_.shape), pad_to(gr, chain_.shape)
     valid = jnp.array(gl.shape, jnp.int32)
     sv, fv = predictor.variables
-    carry, first = _time(chain_._first, lp, rp, valid, sv, None, repeats=repeats)
+    carry, first = _time(chain_._first, lp, rp, valid, sv, None, None, repeats=repeats)   # no limits, no given bands
     (vol, conf), mid = _time(chain_._student, carry, sv, repeats=repeats)
     _, last = _time(chain_._second, carry, vol, conf, fv, repeats=repeats)
     full = cascade.full

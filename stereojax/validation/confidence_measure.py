@@ -2,12 +2,21 @@
 
 Conventions: disparity maps are ``f32[H, W]`` or ``i32[H, W]``; a left pixel (y, x) with
 disparity d matches the right pixel (y, x - d).
+
+:func:`confidence_volume` has two kernels: the JAX kernel (the reference, and the path on every
+platform other than the CPU) and the native C++ kernel beside it (``confidence_measure.cc``, an
+XLA FFI call), picked by its ``kernels`` setting (:mod:`stereojax.kernels`).
 """
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from stereojax import kernels as kernels_mod
 
 
 def confidence(cost: jax.Array, disp_wta: jax.Array, disp_right: jax.Array | None,
@@ -38,7 +47,27 @@ def confidence(cost: jax.Array, disp_wta: jax.Array, disp_right: jax.Array | Non
     return margin * jnp.where(xr >= 0, agree, 0.5)
 
 
-def confidence_volume(vol, disp_wta: jax.Array, disp_right, lr_tolerance: float = 1.0) -> jax.Array:
+def confidence_volume_native(vol, disp_wta: jax.Array, disp_right, lr_tolerance: float = 1.0) -> jax.Array:
+    """The native kernel (``confidence_measure.cc``) of :func:`confidence_volume_xla`."""
+    h, w, _ = vol.cost.shape
+    dr = jnp.zeros((h, w), jnp.int32) if disp_right is None else disp_right.astype(jnp.int32)
+    call = jax.ffi.ffi_call("stereojax_confidence", jax.ShapeDtypeStruct((h, w), jnp.float32),
+                            vmap_method="sequential")
+    return call(vol.cost.astype(jnp.float32), vol.offset.astype(jnp.int32), disp_wta.astype(jnp.int32), dr,
+                banded=np.int32(bool(vol.banded)), has_right=np.int32(disp_right is not None),
+                tolerance=np.float32(lr_tolerance), threads=np.int32(kernels_mod.threads()))
+
+
+def confidence_volume(vol, disp_wta: jax.Array, disp_right, lr_tolerance: float = 1.0,
+                      kernels: str = "auto") -> jax.Array:
+    """:func:`confidence` on a CostVolume (:func:`confidence_volume_xla`), with the kernel of the
+    ``kernels`` setting."""
+    native = functools.partial(confidence_volume_native, lr_tolerance=lr_tolerance)
+    xla = functools.partial(confidence_volume_xla, lr_tolerance=lr_tolerance)
+    return kernels_mod.select(kernels, native, xla, vol, disp_wta, disp_right)
+
+
+def confidence_volume_xla(vol, disp_wta: jax.Array, disp_right, lr_tolerance: float = 1.0) -> jax.Array:
     """:func:`confidence` on a CostVolume: the margin between the best entry of the band and the
     best one at least 2 away within the band, times the left-right agreement."""
     if not vol.banded:
