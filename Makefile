@@ -22,7 +22,7 @@ KITTI_FRAMES ?= 3
 DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
-.PHONY: help install test test-fast demo predict evaluate results-evaluate bench train train-middlebury \
+.PHONY: help install test test-fast demo predict evaluate results-evaluate bench native-floor train train-middlebury \
         search-chain dense-distill dense-distill-final band-search middlebury-folds middlebury-folds-student middlebury-cascade augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
@@ -73,6 +73,9 @@ results-evaluate: $(STAMP)  ## the project's evaluations behind the README table
 bench: $(STAMP)  ## time best, exact head, census chain and OpenCV SGBM on KITTI 000021, cold/warm/cache, peak RSS, stage profile, entries/s vs OpenCV, make demo's computation; issue targets -> experiments/results/bench.{json,md}
 	$(CLI) bench --data $(DATA) --out experiments/results
 	$(EXP)/bench_report.py --results experiments/results
+
+native-floor: $(STAMP)  ## issue 51: each native kernel beside a copy of the chain's volume (the memory floor), kept and fresh pages, SGBM in the same run (~1 min) -> experiments/results/native_floor.{json,md}
+	$(EXP)/native_floor.py --data $(DATA)
 
 dense-distill: $(STAMP)  ## issue 26: students distilled from the full KITTI model's band costs (targets cached in runs/dense_targets, ~45 min) -> experiments/results/dense_distill.{json,md,png}
 	$(EXP)/dense_distill.py --data $(DATA)
