@@ -23,6 +23,7 @@ SOURCES = [
     "stereojax/volume.cc",
     "stereojax/disparity/winner_takes_all.cc",
     "stereojax/validation/confidence_measure.cc",
+    "stereojax/filters/median.cc",
 ]
 
 

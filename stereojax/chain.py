@@ -294,7 +294,7 @@ def _subpixel(st: State, config) -> State:
 
 
 def _median(st: State, config) -> State:
-    return st.replace(disp=median.median_filter(st.disp, config.refine.median_size))
+    return st.replace(disp=median.median_filter(st.disp, config.refine.median_size, config.kernels))
 
 
 def _bilateral(st: State, config) -> State:
