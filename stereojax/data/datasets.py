@@ -92,6 +92,9 @@ class StereoSample:
         gt_noc_valid: ``bool[H, W]`` pixels with non-occluded ground truth, when known.
         calib: :class:`Calibration`, when known.
         max_disp_hint: a suitable number of disparities to search, when known.
+        gt_right: ``f32[H, W]`` right-view disparity (Middlebury ``disp1GT.pfm``; a right pixel
+            x matches the left pixel x + d), 0 where invalid; None if unknown.
+        gt_right_noc_valid: ``bool[H, W]`` right pixels with non-occluded ground truth, when known.
     """
 
     name: str
@@ -102,6 +105,29 @@ class StereoSample:
     gt_noc_valid: np.ndarray | None = None
     calib: Calibration | None = None
     max_disp_hint: int | None = None
+    gt_right: np.ndarray | None = None
+    gt_right_noc_valid: np.ndarray | None = None
+
+    def mirrored(self) -> "StereoSample":
+        """The right view as a pair of its own: both images flipped left-right and swapped, so the
+        flipped right image is the reference and a pixel x still matches x - d in the other image.
+        Its ground truth is the flipped ``gt_right`` (all its finite pixels valid, the
+        non-occluded ones in ``gt_noc_valid``). For training on both views' ground truth.
+
+        Raises:
+            StereoInputError: the sample has no right-view ground truth.
+        """
+        if self.gt_right is None:
+            raise StereoInputError(f"{self.name}: no right-view ground truth (disp1GT.pfm) to mirror")
+
+        def flip(a):
+            return None if a is None else np.ascontiguousarray(a[:, ::-1])
+
+        return StereoSample(name=f"{self.name}_rightview", left=flip(self.right), right=flip(self.left),
+                            gt=flip(self.gt_right), gt_valid=flip(self.gt_right > 0),
+                            gt_noc_valid=flip(self.gt_right_noc_valid), calib=None,
+                            max_disp_hint=self.max_disp_hint, gt_right=flip(self.gt),
+                            gt_right_noc_valid=flip(self.gt_noc_valid))
 
     def crop(self, rows: int, cols: int) -> "StereoSample":
         """The bottom-centre ``rows x cols`` crop (images and ground truth alike; the
@@ -114,7 +140,36 @@ class StereoSample:
             return None if a is None else np.ascontiguousarray(a[sl])
 
         return dataclasses.replace(self, left=cut(self.left), right=cut(self.right), gt=cut(self.gt),
-                                   gt_valid=cut(self.gt_valid), gt_noc_valid=cut(self.gt_noc_valid), calib=None)
+                                   gt_valid=cut(self.gt_valid), gt_noc_valid=cut(self.gt_noc_valid), calib=None,
+                                   gt_right=cut(self.gt_right), gt_right_noc_valid=cut(self.gt_right_noc_valid))
+
+
+#: a pixel whose two ground-truth maps disagree by more than this (px) is occluded in the other view
+#: (the tolerance of Middlebury's own occlusion masks, Scharstein and Szeliski 2003)
+LR_GT_TOLERANCE = 1.0
+
+
+def lr_noc_mask(disp: np.ndarray, valid: np.ndarray, other: np.ndarray, sign: int = -1,
+                tol: float = LR_GT_TOLERANCE) -> np.ndarray:
+    """Non-occluded pixels of one view from a left-right check of the two ground-truth maps.
+
+    A pixel x of the view with ``disp`` (valid where ``valid``) sees the pixel
+    ``x + sign * disp`` of the other view (sign -1 for the left view, +1 for the right view); it
+    is non-occluded when that pixel lies in the image, has ground truth (``other > 0``) and its
+    disparity there, linearly interpolated, differs by at most ``tol`` px.
+    Returns ``bool[H, W]``.
+    """
+    h, w = disp.shape
+    xs = np.arange(w, dtype=np.float32)[None, :] + sign * disp
+    inside = valid & (xs >= 0) & (xs <= w - 1)
+    x0 = np.clip(np.floor(xs), 0, w - 1).astype(np.int64)
+    x1 = np.minimum(x0 + 1, w - 1)
+    f = np.clip(xs - x0, 0.0, 1.0)
+    rows = np.arange(h)[:, None]
+    o0, o1 = other[rows, x0], other[rows, x1]
+    both = (o0 > 0) & (o1 > 0)
+    seen = np.where(both, (1 - f) * o0 + f * o1, np.where(f < 0.5, o0, o1))
+    return inside & (seen > 0) & (np.abs(seen - disp) <= tol)
 
 
 # ---- helpers -----------------------------------------------------------------------------------
@@ -377,7 +432,10 @@ def load_middlebury(scene_dir: PathLike, gt: str = "occ") -> StereoSample:
     ``disp0GT.pfm`` gives the left ground truth (non-finite = invalid). ``mask0nocc.png``
     (255 = non-occluded) gives ``gt_noc_valid`` when present. ``gt="occ"`` (default) makes
     ``gt_valid`` every pixel with finite ground truth; ``gt="noc"`` restricts it to the
-    non-occluded mask, and gives ``gt=None`` when the scene has no mask. ``calib.txt`` gives
+    non-occluded mask, and gives ``gt=None`` when the scene has no mask. ``disp1GT.pfm`` (right
+    view, when present) gives ``gt_right`` and its non-occluded pixels; without ``mask0nocc.png``
+    the left mask comes from a left-right check of the two maps (:func:`lr_noc_mask`, the 2005/2006
+    scenes). ``calib.txt`` gives
     the calibration (baseline converted from mm to metres) and ``ndisp`` -> ``max_disp_hint``.
 
     Raises:
@@ -406,6 +464,15 @@ def load_middlebury(scene_dir: PathLike, gt: str = "occ") -> StereoSample:
                 mask = mask[:, :, 0]
             _check_gt(mask, left, scene / "mask0nocc.png")
             noc_valid = valid & (mask == mask.dtype.type(np.iinfo(mask.dtype).max))
+    disp1 = noc1 = None
+    if disp is not None and (scene / "disp1GT.pfm").is_file():
+        raw1 = io.read_pfm(scene / "disp1GT.pfm")
+        _check_gt(raw1, left, scene / "disp1GT.pfm")
+        valid1 = np.isfinite(raw1) & (raw1 > 0)
+        disp1 = np.where(valid1, raw1, 0).astype(np.float32)
+        noc1 = lr_noc_mask(disp1, valid1, disp, sign=+1)
+        if noc_valid is None:   # no mask0nocc.png: the left-right check of the two maps
+            noc_valid = lr_noc_mask(disp, valid, disp1, sign=-1)
     if gt == "noc":
         if noc_valid is None:
             disp = valid = None
@@ -415,7 +482,8 @@ def load_middlebury(scene_dir: PathLike, gt: str = "occ") -> StereoSample:
     if (scene / "calib.txt").is_file():
         calib, ndisp = parse_middlebury_calib(scene / "calib.txt")
     return StereoSample(name=scene.name, left=left, right=right, gt=disp, gt_valid=valid,
-                        gt_noc_valid=noc_valid, calib=calib, max_disp_hint=ndisp)
+                        gt_noc_valid=noc_valid, calib=calib, max_disp_hint=ndisp, gt_right=disp1,
+                        gt_right_noc_valid=noc1)
 
 
 # ---- built-in sample ---------------------------------------------------------------------------
