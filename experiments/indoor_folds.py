@@ -51,7 +51,7 @@ SHIPPED_TRAINED = {"Aloe_opencv", "Aloe_2006H", "Cones_2003Q", "Reindeer_2006H",
 #: the chain settings are searched on a fold's training scenes of at most this many pixels (T, Q, 2001
 #: sizes: every setting compiles a program per scene, and the H/F scenes cost 2-8x the time)
 SEARCH_MAX_PIXELS = 200_000
-STEPS, LR = 6000, 0.005
+STEPS, LR = 3000, 0.005
 KEYS = ("bad2", "bad3", "epe")
 
 
