@@ -8,18 +8,28 @@ import time
 
 class Phases:
     """``start(what)`` prints "stereojax: what ..."; ``done()`` ends the line with the seconds
-    it took and returns them. ``quiet=True`` only times."""
+    it took and returns them; ``interrupted()`` ends a line left open by a phase that did not
+    finish (Ctrl-C), so that the message after it starts on its own line. ``quiet=True`` only
+    times."""
 
     def __init__(self, quiet: bool = False):
         self.quiet = quiet
+        self._open = False
 
     def start(self, what: str):
         self._t0, self._what = time.perf_counter(), what
         if not self.quiet:
             print(f"stereojax: {what} ...", end="", flush=True)
+            self._open = True
 
     def done(self) -> float:
         secs = time.perf_counter() - self._t0
         if not self.quiet:
             print(f" {secs:.1f} s", flush=True)
+            self._open = False
         return secs
+
+    def interrupted(self) -> None:
+        if self._open:
+            print(" interrupted", flush=True)
+            self._open = False

@@ -27,7 +27,7 @@ from tqdm import tqdm
 from stereojax import kernels as kernels_mod
 from stereojax.app.integrity import damaged, file_entries
 from stereojax.app.outputs import (blank_unconfident, folder_lock, output_folder, pid_alive,
-                                   write_confidence, write_prediction)
+                                   write_confidence, write_prediction, write_rectified)
 from stereojax.app.warnlog import recording
 from stereojax.data.calibration import plausibility_warnings
 from stereojax.data.datasets import load_pair
@@ -74,7 +74,7 @@ def frame_key_of_run(run) -> dict:
 
 
 def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: float = 0.0,
-                 disp_range=None, max_depth: float | None = None) -> dict:
+                 disp_range=None, max_depth: float | None = None, rectifier=None, frame: str = "rectified") -> dict:
     """What a frame's outputs depend on: :func:`frame_key_of_run`, the calibration, the
     point-cloud option, the confidence threshold, the disparity-range option (None, [MIN, MAX]
     or "auto"), ``--max-depth`` (when given) and the two input files."""
@@ -83,6 +83,7 @@ def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: f
             "calib": dataclasses.asdict(calib) if calib is not None else None, "ply": bool(ply),
             "min_confidence": float(min_confidence), "disp_range": rng,
             **({"max_depth": float(max_depth)} if max_depth is not None else {}),
+            **({"rectification": rectifier.to_json(), "frame": frame} if rectifier is not None else {}),
             "left": _file_id(left_path), "right": _file_id(right_path)}
 
 
@@ -111,7 +112,7 @@ def frame_problem(target: Path, record: dict, verify: bool = False) -> str | Non
 def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=None, ply: bool = False,
                  phases=None, record: bool = False, min_confidence: float = 0.0,
                  check_rectified: str = "warn", tile: str = "auto", disp_range=None,
-                 max_depth: float | None = None, sequence=None) -> dict:
+                 max_depth: float | None = None, sequence=None, rectifier=None, frame: str = "rectified") -> dict:
     """Disparity (and depth with ``calib``) of one pair of image files, written into ``target``,
     with its confidence map (``confidence.png``, ``confidence.npy``); pixels whose confidence
     is below ``min_confidence`` have no disparity and no depth (0 in the PNGs).
@@ -125,6 +126,10 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     matches of the rectification check, :func:`stereojax.data.rectification.auto_disp_range`; the
     range used is printed by the CLI and written to ``timings.json`` and ``frame.json``).
 
+    rectifier: a :class:`~stereojax.data.stereo_rig.Rectifier`: the raw pair is rectified first
+    (``left_rectified.png``, ``right_rectified.png`` and ``rectification.json`` are written; depth
+    is on the rectified grid). frame: "original" rotates points.ply into the raw left camera's frame.
+
     max_depth: points farther than this (metres) have no depth in depth.npy / depth.png and no
     point in points.ply. When more than :data:`RANGE_SHARE` of the confident pixels sit at an end
     of the disparity range, an :class:`~stereojax.errors.InputWarning` says so with a suggested
@@ -136,15 +141,26 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
     Returns ``{"disparity", "confidence", "timings", "written", "run", "warnings"}``; ``timings``
     as :meth:`stereojax.inference.predictor.Predictor.timed`."""
 
-    with recording() as warned:
-        return _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
-                             check_rectified, tile, disp_range, max_depth, warned, sequence)
+    try:
+        with recording() as warned:
+            return _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
+                                 check_rectified, tile, disp_range, max_depth, warned, sequence, rectifier, frame)
+    except KeyboardInterrupt:      # Ctrl-C on a single pair (a batch turns signals into Interrupted)
+        if phases is not None and hasattr(phases, "interrupted"):
+            phases.interrupted()   # the message that follows starts on its own line
+        from stereojax.app.outputs import remove_if_empty
+        remove_if_empty()          # an --out folder this run made and left empty goes
+        raise
 
 
 def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
-                  check_rectified, tile, disp_range, max_depth, warned, sequence=None) -> dict:
+                  check_rectified, tile, disp_range, max_depth, warned, sequence=None, rectifier=None,
+                  frame="rectified") -> dict:
 
     sample = load_pair(left_path, right_path)
+    if rectifier is not None:       # a raw pair: rectified before anything else looks at it
+        sample = dataclasses.replace(sample, **dict(zip(("left", "right"), rectifier.rectify(sample.left,
+                                                                                           sample.right))))
     if disp_range != "auto":     # an unusable pair is refused in one line before anything else runs
         h, w = np.shape(sample.left)[:2]
         early = resolve(w, h).config
@@ -152,7 +168,8 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
             early = early.with_max_disp(disp_range[1] - disp_range[0])
         check_size(h, w, early)
     low = disp_range[0] if isinstance(disp_range, tuple | list) else 0
-    check = _check_rectified(sample, check_rectified, need=disp_range == "auto", min_disp=low)
+    check = _check_rectified(sample, check_rectified, need=disp_range == "auto", min_disp=low,
+                             rectified=rectifier is not None)
     found = _disp_range(disp_range, check, sample)
     used = found.range if isinstance(found, AutoRange) else found
     if isinstance(found, AutoRange) and phases is not None and not getattr(phases, "quiet", False):
@@ -173,8 +190,12 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
     disp = blank_unconfident(disp, conf, min_confidence)
     target.mkdir(parents=True, exist_ok=True)
     written = write_prediction(target, "", disp, calib, sample.left, ply=ply, max_depth=max_depth,
-                               confidence=conf) \
+                               confidence=conf,
+                               to_original=rectifier.to_original if rectifier is not None and frame == "original"
+                               else None) \
         + write_confidence(target, "", conf)
+    if rectifier is not None:
+        written += write_rectified(target, rectifier, sample.left, sample.right, frame)
     if calib is not None:
         _check_depth(disp, calib)
     timings = {**timings, "warnings": list(warned)}
@@ -186,7 +207,7 @@ def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, re
     written += ["config.json", "timings.json"]
     if record:
         write_json(target / MANIFEST, {**frame_record(run, calib, ply, left_path, right_path, min_confidence,
-                                                      disp_range, max_depth),
+                                                      disp_range, max_depth, rectifier, frame),
                                        "disp_range_used": None if used is None else list(used),
                                        "size": list(disp.shape), "outputs": written,
                                        "files": file_entries(target, written), "timings": timings,
@@ -207,15 +228,21 @@ def _sequence_frame(holder, run, sample):
                                                  "sequence": record}
 
 
-def _check_rectified(sample, mode: str, need: bool = False, min_disp: int = 0):
+def _check_rectified(sample, mode: str, need: bool = False, min_disp: int = 0, rectified: bool = False):
     """The rectification check of a pair (None when off and not ``need``ed for an auto range);
-    ``min_disp``: the range's lowest disparity (a negative one allows matches to the right)."""
+    ``min_disp``: the range's lowest disparity (a negative one allows matches to the right);
+    ``rectified``: the pair was rectified with ``--calib --rectify`` (a problem then blames the
+    calibration)."""
     if mode == "off" and not need:
         return None
     check = check_rectified(sample.left, sample.right, min_disp=min_disp)
     if check.skipped and mode != "off":
         warnings.warn(check.skipped, InputWarning, stacklevel=3)
     problem = check.problem if mode != "off" else None
+    if problem and rectified and "rectified" in problem:
+        problem = (f"the calibration does not rectify these images: after --rectify, matched features still lie up "
+                   f"to {check.row_offset_p90:.1f} px apart vertically (90th percentile of {check.matches} matches; "
+                   f"median {check.row_offset_median:+.1f} px); was it made for this rig, and have the cameras moved?")
     if problem and mode == "error":
         raise StereoInputError(problem)
     if problem:
@@ -327,7 +354,8 @@ def _reusable(pair, out: Path, resolve, opts: dict, verify: bool = False) -> tup
             return False, None
         height, width = stored["size"]
         record = frame_record(resolve(width, height), opts["calib"], opts["ply"], left_p, right_p,
-                              opts["min_confidence"], opts.get("disp_range"), opts.get("max_depth"))
+                              opts["min_confidence"], opts.get("disp_range"), opts.get("max_depth"),
+                              opts.get("rectifier"), opts.get("frame", "rectified"))
         problem = frame_problem(out / name, record, verify)
         if problem is None:
             return True, None
@@ -339,7 +367,8 @@ def _reusable(pair, out: Path, resolve, opts: dict, verify: bool = False) -> tup
 def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = False,
                   devices: list | None = None, overwrite: bool = False, min_confidence: float = 0.0,
                   check_rectified: str = "warn", tile: str = "auto", disp_range=None, verify: bool = False,
-                  unmatched=None, max_depth: float | None = None, announced: str | None = None) -> dict:
+                  unmatched=None, max_depth: float | None = None, announced: str | None = None,
+                  rectifier=None, frame: str = "rectified") -> dict:
     """Every ``(name, left, right)`` pair into ``out/<name>/``: frames already complete with
     this run's settings are skipped (all computed with ``overwrite``), one compiled chain per
     size bucket, a progress bar with frames/s and the time left, one line per failed pair (the
@@ -360,7 +389,8 @@ def predict_batch(pairs, out: Path, resolve: Callable, calib=None, ply: bool = F
     with folder_lock(output_folder(out), "predict"):
         return predict_batch_locked(pairs, out, resolve, dict(
             calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile,
-            disp_range=disp_range, max_depth=max_depth), devices, overwrite, verify, unmatched, announced)
+            disp_range=disp_range, max_depth=max_depth, rectifier=rectifier, frame=frame), devices, overwrite,
+            verify, unmatched, announced)
 
 
 def remove_stale(out: Path, every: bool = False) -> None:

@@ -11,6 +11,7 @@ import contextlib
 import dataclasses
 import json
 import sys
+import time
 import warnings
 from pathlib import Path
 from typing import Sequence
@@ -24,12 +25,12 @@ from stereojax.app.outputs import folder_lock, output_folder, remove_if_empty
 from stereojax.app.parser import DEFAULT_MAX_DISP, build_parser
 from stereojax.app.ray_batch import connect, predict_batch_ray
 from stereojax.config import StereoConfig
-from stereojax.data.calibration import calibration_from_options, describe
+from stereojax.data.calibration import calibration_from_options, describe, rectified_or_raw
 from stereojax.data.datasets import load_builtin_sample, load_dataset, parse_frames
 from stereojax.data.io import json_default as _json_default, read_image
 from stereojax.data.pairs import find_pairs, unmatched_line
 from stereojax.devices import local_devices
-from stereojax.errors import ConfigError, StereoError, StereoInputError
+from stereojax.errors import ConfigError, InputWarning, StereoError, StereoInputError
 from stereojax.inference.compile_cache import enable
 from stereojax.inference.prepare import check_disp_range
 from stereojax.interrupt import Interrupted
@@ -76,9 +77,32 @@ def _kernels_lines(args) -> tuple[str | None, str | None]:
     return None, line
 
 
+def _rectifier(args):
+    """predict's Rectifier (``--calib RAW --rectify``) or None; the mismatches are one-line errors."""
+    rectify = getattr(args, "rectify", False)
+    if args.calib is None:
+        if rectify:
+            raise ConfigError("--rectify needs --calib with a raw stereo calibration (see stereojax calibrate)")
+        if getattr(args, "frame", "rectified") != "rectified":
+            raise ConfigError("--frame original needs --calib RAW --rectify")
+        return None
+    rect, _ = rectified_or_raw(args.calib, rectify)
+    if rect is None and getattr(args, "frame", "rectified") != "rectified":
+        raise ConfigError("--frame original needs --rectify (the original camera of a raw calibration)")
+    return rect
+
+
 def _calibration(args, show: bool = True):
     """(the calibration of the command line or None, its one-line description or None)."""
-    calib, source = calibration_from_options(args.calib, args.baseline, args.focal, args.doffs)
+    rect = _rectifier(args) if args.calib is not None or getattr(args, "rectify", False) else None
+    if rect is not None:
+        if args.baseline is not None or args.focal is not None:
+            raise ConfigError("give either --calib or --baseline/--focal, not both")
+        calib, source = rect.calibration, f"{args.calib} rectified ({rect.size[0]}x{rect.size[1]} images)"
+        args.rectifier = rect
+    else:
+        calib, source = calibration_from_options(args.calib, args.baseline, args.focal, args.doffs)
+        args.rectifier = None
     line = describe(calib, source) if calib is not None else None
     if show and line:
         print(line)
@@ -149,6 +173,8 @@ def cmd_predict(args) -> int:
 def _predict(args, pairs, batch, out, devices, calib, calib_line, kernels_line=None) -> int:
     opts = dict(calib=calib, ply=args.ply, min_confidence=args.min_confidence, check_rectified=args.check_rectified,
                 tile=args.tile, disp_range=_disp_range_arg(args.disp_range), max_depth=args.max_depth)
+    if getattr(args, "rectifier", None) is not None:
+        opts.update(rectifier=args.rectifier, frame=args.frame)
     resolve = lambda w, h: _resolve(args, w, h)  # noqa: E731
     size = _first_size(pairs)
     announced = None
@@ -166,8 +192,10 @@ def _predict(args, pairs, batch, out, devices, calib, calib_line, kernels_line=N
                           "Middlebury scenes or a pair list (one pair runs here without --ray)")
     if not batch and args.sequence:
         raise ConfigError("--sequence needs several pairs: two folders, a KITTI folder or a pair list")
+    viewer = _viewer(args)                         # a missing rerun-sdk is refused before any work
     if not batch:
         print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
+        _log_viewer(viewer, args, out, [(pairs[0][0], out)], calib, sequence=False)
         return 0
     unmatched = getattr(pairs, "unmatched", [])
     if unmatched:
@@ -185,7 +213,52 @@ def _predict(args, pairs, batch, out, devices, calib, calib_line, kernels_line=N
         s = predict_batch(pairs, out, resolve, devices=devices, overwrite=args.overwrite, verify=args.verify,
                           unmatched=unmatched, announced=announced, **opts)
     print(summary_line(s, out))
+    done = [(name, out / name) for name, *_ in pairs if (out / name / "disparity.pfm").is_file()]
+    _log_viewer(viewer, args, out, done, calib, sequence=args.sequence)
     return 2 if s["failed"] else 0
+
+
+def _viewer(args):
+    """The Rerun log of --rerun FILE.rrd / --rerun-serve, or None."""
+    if not (args.rerun or args.rerun_serve):
+        return None
+    from stereojax.data.rerun_log import RerunLog, rerun_module
+
+    rerun_module()                     # one line with the install command when rerun-sdk is missing
+    if args.rerun and Path(args.rerun).suffix != ".rrd":
+        raise ConfigError(f"--rerun takes a file ending in .rrd, got {args.rerun!r}")
+    return lambda: RerunLog(args.rerun, args.rerun_serve, name=f"stereojax predict {Path(args.out).name}")
+
+
+def _log_viewer(viewer, args, out: Path, frames, calib, sequence: bool) -> None:
+    """Log the finished frames (name, folder) to Rerun: a sequence on the frame timeline with its
+    fallbacks as text events, a batch under each frame's name."""
+    if viewer is None:
+        return
+    from stereojax.data.rerun_log import log_outputs
+
+    log = viewer()
+    to_original = args.rectifier.to_original if args.rectifier is not None and args.frame == "original" else None
+    try:
+        for i, (name, folder) in enumerate(frames):
+            events = []
+            if sequence:
+                rec = json.loads((folder / "timings.json").read_text()).get("sequence", {})
+                events = [f"{name}: " + (f"no prior ({rec['fallback']})" if rec.get("fallback")
+                                         else "prior from the previous frame")]
+            log_outputs(log, folder, name, calib, index=i if sequence else None, events=events,
+                        to_original=to_original)
+    finally:
+        log.close()
+    if args.rerun:
+        print(f"stereojax: Rerun recording of {len(frames)} frame(s) -> {args.rerun} (open with: rerun {args.rerun})")
+    if args.rerun_serve:
+        print(f"stereojax: Rerun web viewer at http://localhost:9090/?url={log.url} (Ctrl-C ends it)", flush=True)
+        try:
+            while True:
+                time.sleep(3600)
+        except KeyboardInterrupt:
+            pass
 
 
 def cmd_evaluate(args) -> int:
@@ -243,6 +316,26 @@ def cmd_train(args) -> int:
     return 0
 
 
+def cmd_calibrate(args) -> int:
+    from stereojax.data.stereo_rig import calibrate, parse_board, write_rig_atomic
+
+    out = Path(args.out)
+    if out.suffix.lower() not in (".yaml", ".yml", ".xml", ".json"):
+        raise ConfigError(f"--out must end in .yaml, .yml, .xml or .json, got {args.out!r}")
+    board = parse_board(args.board)
+    rig, report = calibrate(args.left, args.right, board, args.square)
+    for line in report.warnings:
+        warnings.warn(line, InputWarning, stacklevel=1)
+    for left, right, why in report.dropped:
+        print(f"stereojax calibrate: dropped {left} / {right}: {why}", file=sys.stderr)
+    write_rig_atomic(out, rig, {"board": args.board, "square": float(args.square),
+                                "pairs_used": len(report.used)})
+    unit = "m" if args.square != 1.0 else "squares"
+    print(f"stereojax calibrate: {len(report.used)} of {len(report.used) + len(report.dropped)} pairs, RMS "
+          f"{rig.rms:.3f} px, baseline {rig.baseline:.4g} {unit}, {rig.size[0]}x{rig.size[1]} -> {out}")
+    return 0
+
+
 def cmd_bench(args) -> int:
     run_bench(Path(args.out), repeats=args.repeats, max_disp=args.max_disp, data=args.data)
     return 0
@@ -258,7 +351,7 @@ def _warning_printer(command: str):
 
 
 COMMANDS = {"predict": cmd_predict, "evaluate": cmd_evaluate, "demo": cmd_demo, "train": cmd_train,
-            "bench": cmd_bench}
+            "bench": cmd_bench, "calibrate": cmd_calibrate}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -282,6 +375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.exit_code
     except KeyboardInterrupt:
         print(f"stereojax {args.command}: interrupted", file=sys.stderr)
+        remove_if_empty()              # an --out folder this run made and left empty goes too
         return 130
     except MemoryError:
         print(f"stereojax {args.command}: error: out of memory; try a smaller --max-disp or image",

@@ -27,7 +27,7 @@ from stereojax.app.batch import frame_key_of_run
 from stereojax.app.integrity import damaged, file_entries
 from stereojax.app.outputs import color_scale, folder_lock, output_folder, write_prediction
 from stereojax.data import io
-from stereojax.data.datasets import search_range
+from stereojax.data.datasets import NOC_SOURCE, search_range
 from stereojax.devices import current_device, map_frames
 from stereojax.errors import StereoInputError
 from stereojax.inference.predictor import Predictor
@@ -222,6 +222,46 @@ def format_table(mean: Mapping[str, Mapping], pipeline: str | None = None) -> st
     return "\n".join(lines)
 
 
+def gt_line(dataset: str, gt_of: Mapping[str, str | None] | None) -> str | None:
+    """``--gt auto``: the line that says which ground truth is scored, and why, from ``gt_of``
+    (frame id -> "noc", "occ" or None, :func:`stereojax.data.datasets.ground_truth_of`); None when
+    no frame has ground truth (the run then fails, saying so)."""
+    if gt_of is None:
+        return "ground truth: non-occluded pixels where a frame has them, else all pixels (--gt auto)"
+    noc = [f for f, g in gt_of.items() if g == "noc"]
+    occ = [f for f, g in gt_of.items() if g == "occ"]
+    source = NOC_SOURCE.get(dataset, "a non-occlusion mask")
+    if not noc and not occ:
+        return None
+    if not occ:
+        return (f"ground truth: non-occluded pixels, which every frame with ground truth has ({source}); "
+                "--gt occ scores all pixels, --gt both each apart")
+    if not noc:
+        return f"ground truth: all pixels, since no frame has non-occluded ground truth ({source})"
+    names = ", ".join(occ[:5]) + (" ..." if len(occ) > 5 else "")
+    return (f"ground truth: non-occluded pixels on {len(noc)} frame(s), all pixels on the {len(occ)} without "
+            f"non-occluded ground truth ({source}): {names}; --gt noc skips those, --gt occ scores all "
+            "pixels everywhere")
+
+
+#: what to try when a frame lacks the ground truth asked for (the end of the missing-GT line)
+_GT_HINT = {"noc": "--gt occ scores all pixels (the non-occluded ones need {source})",
+            "occ": "--gt noc scores the non-occluded pixels",
+            "both": "--gt noc or --gt occ scores the one there is"}
+
+
+def _gt_text(gt: str, rows: list[dict]) -> str:
+    """The ground truth of a results.md title: "noc GT", or under auto what the frames got."""
+    if gt != "auto":
+        return f"{gt} GT"
+    occ = [r["frame"] for r in rows if r.get("gt") == "occ"]
+    if not occ:
+        return "noc GT"
+    if len(occ) == len(rows):
+        return "occ GT (all pixels)"
+    return f"noc GT (all pixels on {', '.join(occ[:5])}{' ...' if len(occ) > 5 else ''})"
+
+
 def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: str = "interpolate",
                      max_disp: int | None = None, sgbm: bool = False, devices: list | None = None,
                      overwrite: bool = False, verify: bool = False) -> dict:
@@ -236,13 +276,23 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
     computed again (``overwrite``: every frame is computed) when each of its files has its
     recorded size (``verify``: and SHA-256; a damaged frame is named and scored again), so an
     interrupted evaluation
-    continues where it stopped and its mean is that of an uninterrupted one. Frames without
+    continues where it stopped and its mean is that of an uninterrupted one. ``gt``: "noc",
+    "occ", "both" (each scored apart) or "auto": each frame scored on the ground truth its
+    loader gave (``load_dataset(..., gt="auto")``: non-occluded where the data has it, else all
+    pixels), said in one line first (:func:`gt_line`, from the items' ``gt_of``) and recorded
+    in each row's ``gt``. Frames without
     ``gt`` ground truth are skipped with a warning (:class:`StereoInputError` when none has
-    it). SIGINT/SIGTERM raise :class:`stereojax.interrupt.Interrupted` after the records of the
-    finished frames are written. Returns what results.json holds."""
+    it; both name the ``--gt`` that would score them). Nothing is written before the first frame
+    is scored, so a run that fails before it leaves the folder as it found it. SIGINT/SIGTERM
+    raise :class:`stereojax.interrupt.Interrupted` after the records of the finished frames are
+    written. Returns what results.json holds."""
 
 
     out = Path(out)
+    if gt == "auto":
+        line = gt_line(dataset, getattr(items, "gt_of", None))
+        if line:
+            print(f"stereojax: {line}", flush=True)
     if devices and len(devices) > 1:
         print(f"{len(devices)} devices, one frame each at a time", file=sys.stderr)
     methods = {"pipeline": chain_method(run.config, run.model(), cascade=run.cascade_arg())}
@@ -251,8 +301,18 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
     key = {"dataset": dataset, "gt": gt, "fill": fill, "max_disp": max_disp, "methods": list(methods),
            **frame_key_of_run(run)}
     records = out / "frames"
+    legend = out / "error_legend.png"                 # what <frame>_error.png's colours mean
+    legend_written = []
+
+    def write_legend():
+        if not legend_written:
+            io.write_png(legend, io.error_legend())
+            legend_written.append(True)
 
     def write(row, sample, disparities):
+        write_legend()                                # with the first output, not before it
+        if gt == "auto":                              # what this frame was scored on
+            row["gt"] = "noc" if sample.gt_noc_valid is not None else "occ"
         disp = disparities["pipeline"]
         names = write_prediction(out, f"{row['frame']}_", disp,
                                  color_max=color_scale(disp, sample.gt, sample.gt_valid))
@@ -274,7 +334,6 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
         return stored.get("row")
 
     with folder_lock(output_folder(out), "evaluate"), stop_on_signals():
-        io.write_png(out / "error_legend.png", io.error_legend())      # what <frame>_error.png's colours mean
         result = evaluate_frames(items, methods, lambda s: search_range(dataset, s, max_disp), fill=fill,
                                  devices=devices, on_frame=write, progress=f"evaluate {dataset}",
                                  reuse=None if overwrite else earlier,
@@ -285,11 +344,14 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
               f"{records} (--overwrite computes them again)", file=sys.stderr)
     if missing_gt:
         names = ", ".join(missing_gt[:5]) + (" ..." if len(missing_gt) > 5 else "")
-        what = "non-occluded and all-pixel" if gt == "both" else gt
-        msg = f"no {what} ground truth for {len(missing_gt)} frame(s): {names}"
+        what = {"both": "non-occluded and all-pixel ", "auto": ""}.get(gt, f"{gt} ")
+        msg = f"no {what}ground truth for {len(missing_gt)} frame(s): {names}"
+        hint = _GT_HINT.get(gt, "").format(source=NOC_SOURCE.get(dataset, "a non-occlusion mask"))
         if not per_frame:
-            raise StereoInputError(msg + "; nothing to evaluate")
-        print(f"warning: {msg}; skipped", file=sys.stderr)
+            raise StereoInputError(msg + "; nothing to evaluate" + (f"; {hint}" if hint else ""))
+        print(f"warning: {msg}; skipped" + (f"; {hint}" if hint else ""), file=sys.stderr)
+    if not legend.exists():                           # every frame from the records of an earlier run
+        write_legend()
     results = {"dataset": dataset, "gt": gt, "fill": fill, "frames": per_frame, "mean": result["mean"],
                "reused": result["reused"],
                "config": run.with_max_disp(per_frame[0]["max_disp"]).config.to_dict(),
@@ -297,7 +359,8 @@ def evaluate_dataset(items, dataset: str, run, out, *, gt: str = "noc", fill: st
     io.write_json(out / "results.json", results)
     table = format_table(result["mean"], run.label)
     with io.atomic_output(out / "results.md") as tmp:
-        Path(tmp).write_text(f"# {dataset}, {len(per_frame)} frames, {gt} GT, missing estimates: {fill}\n\n"
+        Path(tmp).write_text(f"# {dataset}, {len(per_frame)} frames, {_gt_text(gt, per_frame)}, missing "
+                             f"estimates: {fill}\n\n"
                              f"{table}\n")
     print(table)
     print(f"-> {out}/results.json")

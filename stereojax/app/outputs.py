@@ -161,6 +161,9 @@ def color_legend(top: float) -> dict:
 #: 93 % of KITTI's pixels while the error of the kept ones falls from 3.0 to 2.0 % > 3 px)
 RELIABLE_MIN_DISP = 10.0
 RELIABLE_MIN_CONFIDENCE = 0.3
+#: the grey of an unreliable depth in depth_color.png: half brightness, whatever the depth (a far pixel
+#: is never near black, which is "no depth")
+UNRELIABLE_GREY = 128
 
 
 def depth_reliable(disp, confidence=None) -> np.ndarray:
@@ -177,7 +180,7 @@ def depth_reliable(disp, confidence=None) -> np.ndarray:
 def depth_color(z, reliable) -> tuple[np.ndarray, dict]:
     """``u8[H, W, 3]`` picture of depth ``z`` (metres) and its scale: near red, far blue (Turbo
     over the 1st..99th percentile of the reliable depths, clipped beyond); unreliable pixels in
-    grey at half brightness, pixels without depth black."""
+    grey at half brightness (:data:`UNRELIABLE_GREY`, at every depth), pixels without depth black."""
     z = np.asarray(z, np.float32)
     has = np.isfinite(z) & (z > 0)
     shown = has & reliable
@@ -185,11 +188,11 @@ def depth_color(z, reliable) -> tuple[np.ndarray, dict]:
     near, far = (float(v) for v in np.percentile(pick, [1, 99]))
     far = max(far, near + 1e-3)
     rgb = io.colorize_disparity(np.where(has, np.clip(far - z, 0, None), np.nan), max_disp=far - near)
-    grey = (rgb.mean(axis=2, keepdims=True) * 0.5).astype(np.uint8)
-    rgb = np.where((has & ~reliable)[..., None], grey, rgb)
+    rgb = np.where((has & ~reliable)[..., None], np.uint8(UNRELIABLE_GREY), rgb).astype(np.uint8)
     legend = {"image": "depth_color.png", "colormap": "turbo, reversed", "unit": "m", "near": round(near, 3),
               "far": round(far, 3), "clipped": True, "no_depth": [0, 0, 0],
-              "unreliable": "grey at half brightness (depth_reliable.png = 0)",
+              "unreliable": [UNRELIABLE_GREY] * 3,
+              "unreliable_means": "grey at half brightness, at every depth (depth_reliable.png = 0)",
               "reliable_when": f"disparity >= {RELIABLE_MIN_DISP:g} px (1 px of disparity error is at most 10 % of "
                                f"the depth) and confidence >= {RELIABLE_MIN_CONFIDENCE:g} where known",
               "reliable_to_m": round(float(z[shown].max()), 3) if shown.any() else None,
@@ -200,14 +203,18 @@ def depth_color(z, reliable) -> tuple[np.ndarray, dict]:
 
 
 def write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=False, color_max=None,
-                     max_depth: float | None = None, confidence=None):
+                     max_depth: float | None = None, confidence=None, to_original=None):
     """Write disparity (KITTI png, PFM, colour png and its scale ``disparity_color.json``) and,
     with ``calib``, depth files: ``depth.png`` (uint16, 1/256 m, KITTI's convention), ``depth.npy``
     (float32 metres), ``depth_color.png`` with its scale ``depth_color.json``, and
     ``depth_reliable.png`` (255 where the depth can be trusted, :func:`depth_reliable`, with the
     ``confidence`` map when given); returns the written names. Pixels without an estimate (NaN,
     inf, negative) are 0 in the PNGs and the depth; with ``max_depth``, so are points farther
-    than that (metres), and they are left out of points.ply."""
+    than that (metres), and they are left out of points.ply. to_original(xyz): points.ply in another
+    frame (the raw left camera's, :meth:`stereojax.data.stereo_rig.Rectifier.to_original`).
+
+    points.ply's axes: x right, y down, z forward (OpenCV's camera frame), metres, origin at the
+    left camera's centre (the rectified one, unless ``to_original`` moves them)."""
 
     written = []
     io.write_kitti_disparity(out / f"{stem}disparity.png", disp)
@@ -232,6 +239,17 @@ def write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=Fal
                     f"{stem}depth_reliable.png"]
         if ply and image is not None:
             xyz, rgb = depth_mod.point_cloud(disp, image, calib, max_depth=max_depth)
+            if to_original is not None:
+                xyz = np.asarray(to_original(xyz), np.float32)
             depth_mod.write_ply(out / f"{stem}points.ply", xyz, rgb)
             written.append(f"{stem}points.ply")
     return written
+
+
+def write_rectified(out: Path, rectifier, left, right, frame: str = "rectified") -> list[str]:
+    """The rectified pair (``left_rectified.png``, ``right_rectified.png``) and the rectification
+    (``rectification.json``: R1, R2, P1, P2, Q, and the frame of points.ply); returns the names."""
+    io.write_png(out / "left_rectified.png", left)
+    io.write_png(out / "right_rectified.png", right)
+    io.write_json(out / "rectification.json", {**rectifier.to_json(), "points_frame": frame})
+    return ["left_rectified.png", "right_rectified.png", "rectification.json"]

@@ -102,8 +102,17 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--baseline", type=float, help="baseline in metres (for depth)")
     sp.add_argument("--focal", type=float, help="focal length in pixels (for depth)")
     sp.add_argument("--doffs", type=float, default=0.0, help="x-difference of principal points (Middlebury)")
-    sp.add_argument("--calib", help="calibration file for depth: KITTI calib_cam_to_cam.txt or calib/<frame>.txt, "
-                    "Middlebury calib.txt, OpenCV YAML or JSON with K and baseline (m)")
+    sp.add_argument("--calib", metavar="FILE | LEFT.yaml,RIGHT.yaml", help="calibration file for depth: KITTI "
+                    "calib_cam_to_cam.txt or calib/<frame>.txt, Middlebury calib.txt, OpenCV YAML or JSON with K and "
+                    "baseline (m); with --rectify, a raw stereo calibration: `stereojax calibrate`'s file, OpenCV's "
+                    "stereoCalibrate output (YAML, XML or JSON: M1/K1, D1, M2/K2, D2, R, T), Kalibr's camchain.yaml, "
+                    "or two ROS camera_info files as LEFT.yaml,RIGHT.yaml")
+    sp.add_argument("--rectify", action="store_true", help="rectify each raw pair with the raw stereo calibration of "
+                    "--calib before matching (OpenCV stereoRectify, maps built once per image size); writes "
+                    "left_rectified.png, right_rectified.png and rectification.json (R1, R2, P1, P2, Q)")
+    sp.add_argument("--frame", default="rectified", choices=["rectified", "original"], help="--rectify: the "
+                    "point cloud in the rectified left camera's frame (default) or rotated into the original (raw) "
+                    "left camera's; depth stays on the rectified pixel grid")
     sp.add_argument("--ply", action="store_true", help="also write a coloured point cloud (needs a calibration; "
                     "refused without one)")
     sp.add_argument("--max-depth", type=float, metavar="M", help="no depth (0) in depth.npy/depth.png and no point "
@@ -123,6 +132,12 @@ def build_parser() -> argparse.ArgumentParser:
                     "to the whole range at a scene cut or where the prior fails), and OUT/sequence.mp4 shows them")
     sp.add_argument("--fps", type=float, default=10.0, help="--sequence: frames per second of the video (default 10, "
                     "KITTI's)")
+    sp.add_argument("--rerun", metavar="FILE.rrd", help="also log every frame to a Rerun recording (open it with "
+                    "`rerun FILE.rrd` or app.rerun.io): the left image, disparity, confidence, depth with the camera as "
+                    "a pinhole and the coloured point cloud; a --sequence on a timeline with its prior and fallbacks "
+                    "as text events (needs pip install \"stereojax[viewer]\")")
+    sp.add_argument("--rerun-serve", action="store_true", help="as --rerun, to Rerun's web viewer served from this "
+                    "machine (the URL is printed; the command waits for Ctrl-C once done)")
     sp.add_argument("--ray", metavar="ADDRESS", help="compute the batch on a Ray cluster: HOST:PORT, ray://HOST:PORT, "
                     "or auto (RAY_ADDRESS, else a new local cluster); same outputs and resume as a local batch "
                     "(needs pip install \"stereojax[ray]\"; OUT must be a folder every node sees)")
@@ -132,12 +147,23 @@ def build_parser() -> argparse.ArgumentParser:
     add_method(sp)
     add_kernels(sp)
 
+    sp = sub.add_parser("calibrate", help="calibrate a raw stereo pair from chessboard views (OpenCV "
+                        "stereoCalibrate) for predict --calib FILE --rectify")
+    sp.add_argument("left", help="the left views: a folder, or a quoted glob pattern such as 'cal/left*.jpg'")
+    sp.add_argument("right", help="the right views, paired with the left ones in sorted order")
+    sp.add_argument("--board", default="9x6", help="inner corners of the chessboard, COLSxROWS (default 9x6)")
+    sp.add_argument("--square", type=float, default=1.0, help="side of a square, in the unit depth should have "
+                    "(metres, e.g. 0.025; default 1: depth in squares)")
+    sp.add_argument("--out", default="stereo.yaml", help="the calibration file to write (.yaml, .yml, .xml or "
+                    ".json; default stereo.yaml)")
+
     sp = sub.add_parser("evaluate", help="score the pipeline on KITTI 2012/2015 or Middlebury")
     sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data/kitti2015/training)")
     sp.add_argument("--dataset", required=True, choices=["kitti2015", "kitti2012", "middlebury"])
     sp.add_argument("--frames", help="e.g. 000021-000030 or 21,22 (default: all)")
-    sp.add_argument("--gt", default="noc", choices=["noc", "occ", "both"], help="ground truth: non-occluded, "
-                    "all pixels (occ), or both scored apart (default noc)")
+    sp.add_argument("--gt", default="auto", choices=["auto", "noc", "occ", "both"], help="ground truth: auto "
+                    "(default: non-occluded pixels where the data has them, else all pixels; one line says which), "
+                    "noc, occ (all pixels), or both scored apart")
     sp.add_argument("--fill", default="interpolate", choices=["interpolate", "error"],
                     help="pixels without estimate: KITTI background interpolation, or count as errors")
     sp.add_argument("--max-disp", type=int, help="default: 228 for KITTI, ndisp/GT for Middlebury")

@@ -114,7 +114,7 @@ def predict_batch_ray(pairs, out: Path, resolve: Callable, address: str = "auto"
                       cpus_per_worker: int = 2, overwrite: bool = False, verify: bool = False, unmatched=None,
                       announced: str | None = None, calib=None, ply: bool = False, min_confidence: float = 0.0,
                       check_rectified: str = "warn", tile: str = "auto", disp_range=None,
-                      max_depth: float | None = None) -> dict:
+                      max_depth: float | None = None, rectifier=None, frame: str = "rectified") -> dict:
     """:func:`stereojax.app.batch.predict_batch` on a Ray cluster (see the module docstring), with the
     same options and outputs.
 
@@ -133,6 +133,8 @@ def predict_batch_ray(pairs, out: Path, resolve: Callable, address: str = "auto"
     each = worker_resources(workers, gpus, cpus, cpus_per_worker)
     opts = dict(calib=calib, ply=ply, min_confidence=min_confidence, check_rectified=check_rectified, tile=tile,
                 disp_range=disp_range, max_depth=max_depth)
+    if rectifier is not None:
+        opts.update(rectifier=rectifier, frame=frame)
     worker = _worker_class(ray)
     with folder_lock(out, "predict"):
         actors = [worker.options(**each).remote(str(out), resolve, opts) for _ in range(workers)]

@@ -114,6 +114,24 @@ def calibration_from_options(calib_file=None, baseline: float | None = None, foc
     return calib, source
 
 
+def rectified_or_raw(calib_file, rectify: bool):
+    """What ``--calib FILE`` (or ``LEFT.yaml,RIGHT.yaml``) holds, checked against ``--rectify``:
+    (a :class:`~stereojax.data.stereo_rig.Rectifier` with ``--rectify``, else None; the format's name).
+    A raw stereo calibration (two cameras with distortion, R and T) needs ``--rectify``, and
+    ``--rectify`` needs one: either mismatch is a one-line :class:`StereoInputError`."""
+    from stereojax.data.stereo_rig import Rectifier, read_rig
+
+    rig, source = read_rig(str(calib_file))
+    if rig is not None and not rectify:
+        raise StereoInputError(f"{calib_file} is a raw stereo calibration ({source}): add --rectify to rectify "
+                               "each pair with it before matching")
+    if rig is None and rectify:
+        raise StereoInputError(f"--rectify needs a raw stereo calibration (K1, D1, K2, D2, R, T; Kalibr camchain; "
+                               f"two ROS camera_info files); {calib_file} is not one (a rectified pair's calibration "
+                               "is given without --rectify)")
+    return (Rectifier(rig) if rig is not None else None), source
+
+
 def describe(calib: Calibration, source: str) -> str:
     """One line with the calibration and the units of the depth it gives."""
     return (f"depth in metres from {source}: baseline {calib.baseline:.4g} m, focal {calib.focal:.5g} px, "

@@ -34,7 +34,7 @@ from stereojax.errors import ConfigError, StereoInputError, wxh
 __all__ = [
     "Calibration", "StereoSample", "load_pair", "list_kitti2015", "load_kitti2015",
     "list_kitti2012", "load_kitti2012", "list_middlebury", "load_middlebury",
-    "load_builtin_sample", "load_dataset", "DATASETS",
+    "load_builtin_sample", "load_dataset", "ground_truth_of", "DatasetFrames", "DATASETS",
 ]
 
 PathLike = str | os.PathLike
@@ -206,6 +206,17 @@ def _unknown_frame(frame: str, root: Path, ids: list[str]) -> StereoInputError:
     return StereoInputError(f"unknown frame {frame!r} in {root}; available: {_available(ids)}")
 
 
+def _no_kitti_frame(frame: str, root: Path, what: str, layout: str, lister) -> StereoInputError:
+    """The error of a KITTI frame that is not in ``root``: a folder that does not exist, or that
+    holds no pair at all, is said as such (not as an unknown frame with "available: none")."""
+    if not root.is_dir():
+        return StereoInputError(f"no such folder: {root} (expected a {what} training/ folder)")
+    ids = lister(root)
+    if not ids:
+        return StereoInputError(f"no {what} pairs in {root}: expected {layout} with <frame>_10.png images")
+    return _unknown_frame(frame, root, ids)
+
+
 def _frame_id(frame) -> str:
     if isinstance(frame, (int, np.integer)):
         return f"{int(frame):06d}"
@@ -311,7 +322,7 @@ def load_kitti2015(root: PathLike, frame: str | int, gt: str = "noc") -> StereoS
     root, frame, gt = Path(root), _frame_id(frame), _gt_arg(gt)
     name = f"{frame}_10.png"
     if not ((root / "image_2" / name).is_file() and (root / "image_3" / name).is_file()):
-        raise _unknown_frame(frame, root, list_kitti2015(root))
+        raise _no_kitti_frame(frame, root, "KITTI 2015", "image_2/ and image_3/", list_kitti2015)
     left, right, disp, valid, noc_valid = _kitti_views(root, ("image_2", "image_3"), ("disp_noc_0", "disp_occ_0"),
                                                        name, gt)
     calib_path = root / "calib_cam_to_cam" / f"{frame}.txt"
@@ -363,7 +374,8 @@ def load_kitti2012(root: PathLike, frame: str | int, gt: str = "noc") -> StereoS
     root, frame, gt = Path(root), _frame_id(frame), _gt_arg(gt)
     views = _kitti2012_views(root, frame)
     if views is None:
-        raise _unknown_frame(frame, root, list_kitti2012(root))
+        raise _no_kitti_frame(frame, root, "KITTI 2012", "image_0/ and image_1/ (or colored_0/ and colored_1/)",
+                              list_kitti2012)
     name = f"{frame}_10.png"
     left, right, disp, valid, noc_valid = _kitti_views(root, views, ("disp_noc", "disp_occ"), name, gt)
     calib = None
@@ -559,8 +571,43 @@ def _resolve_root(root: Path, dataset: str) -> tuple[Path, list[str]]:
     return root, []
 
 
+#: where each data set keeps the non-occluded ground truth, in words (for the messages that name it)
+NOC_SOURCE = {"kitti2015": "disp_noc_0/", "kitti2012": "disp_noc/",
+              "middlebury": "mask0nocc.png, or disp1GT.pfm for a left-right check"}
+
+
+def ground_truth_of(folder: PathLike, dataset: str, frame: str) -> str | None:
+    """The ground truth a frame's files give, seen from their names only (nothing is read):
+    ``"noc"`` when its non-occluded pixels are known (KITTI: ``disp_noc_0/`` or ``disp_noc/``;
+    Middlebury: ``disp0GT.pfm`` with ``mask0nocc.png``, or with ``disp1GT.pfm``, whose left-right
+    check gives the mask, :func:`load_middlebury`), ``"occ"`` when only all-pixel ground truth is
+    there, None when there is none. ``folder`` holds the frames (a KITTI ``training`` folder, the
+    folder of Middlebury scenes)."""
+    folder = Path(folder)
+    if dataset == "middlebury":
+        scene = folder / frame
+        if not (scene / "disp0GT.pfm").is_file():
+            return None
+        return "noc" if (scene / "mask0nocc.png").is_file() or (scene / "disp1GT.pfm").is_file() else "occ"
+    noc, occ = ("disp_noc_0", "disp_occ_0") if dataset == "kitti2015" else ("disp_noc", "disp_occ")
+    name = f"{_frame_id(frame)}_10.png"
+    if (folder / noc / name).is_file():
+        return "noc"
+    return "occ" if (folder / occ / name).is_file() else None
+
+
+class DatasetFrames(list):
+    """What :func:`load_dataset` returns: a list of ``(frame id, loader)`` pairs, with ``gt_of``
+    (``gt="auto"`` only, else None): frame id -> the ground truth its loader gives, ``"noc"``,
+    ``"occ"`` (all pixels) or None (none), from :func:`ground_truth_of`."""
+
+    def __init__(self, items=(), gt_of: dict | None = None):
+        super().__init__(items)
+        self.gt_of = gt_of
+
+
 def load_dataset(root: PathLike, dataset: str, frames: list[str] | None = None,
-                 gt: str = "noc") -> list[tuple[str, Callable[[], StereoSample]]]:
+                 gt: str = "noc") -> DatasetFrames:
     """List the frames of a data set as ``(frame id, loader)`` pairs; ``loader()`` reads the frame.
 
     ``dataset`` is ``"kitti2015"``, ``"kitti2012"`` or ``"middlebury"``. ``root`` may be the
@@ -568,7 +615,10 @@ def load_dataset(root: PathLike, dataset: str, frames: list[str] | None = None,
     one level above it, or the shared data root (``.../data`` with ``kitti2015/training``
     inside). Frame ids are KITTI's ``"000021"`` or Middlebury scene names; ``frames=None``
     means all, in sorted order. ``gt`` is passed to the loader (Middlebury: ``"noc"`` restricts
-    GT to ``mask0nocc.png`` and gives ``gt=None`` for scenes without the mask).
+    GT to the non-occluded mask and gives ``gt=None`` for scenes without one). ``gt="auto"``:
+    per frame, the non-occluded ground truth where its files give it, else all pixels
+    (:func:`ground_truth_of`, kept in the answer's ``gt_of``): each frame is read with the ``gt``
+    its files give, so that ``gt_valid`` is what to score.
 
     Raises:
         StereoInputError: unknown dataset or gt, a root with no pairs (naming the subfolders
@@ -576,7 +626,8 @@ def load_dataset(root: PathLike, dataset: str, frames: list[str] | None = None,
     """
     if dataset not in _LAYOUT:
         raise StereoInputError(f"unknown dataset {dataset!r}; expected one of {', '.join(DATASETS)}")
-    gt = _gt_arg(gt)
+    if gt not in ("noc", "occ", "auto"):
+        raise StereoInputError(f"gt must be 'noc', 'occ' or 'auto', got {gt!r}")
     root = Path(root)
     if not root.is_dir():
         raise StereoInputError(f"{dataset} data folder {root} does not exist")
@@ -593,14 +644,17 @@ def load_dataset(root: PathLike, dataset: str, frames: list[str] | None = None,
             raise StereoInputError(f"unknown {dataset} frame(s) {', '.join(missing[:5])} in {folder}; "
                                    f"available: {_available(ids)}")
 
-    def loader(frame: str) -> Callable[[], StereoSample]:
-        if dataset == "kitti2015":
-            return lambda: load_kitti2015(folder, frame, gt=gt)
-        if dataset == "kitti2012":
-            return lambda: load_kitti2012(folder, frame, gt=gt)
-        return lambda: load_middlebury(folder / frame, gt=gt)
+    gt_of = {f: ground_truth_of(folder, dataset, f) for f in chosen} if gt == "auto" else None
 
-    return [(f, loader(f)) for f in chosen]
+    def loader(frame: str) -> Callable[[], StereoSample]:
+        g = (gt_of[frame] or "noc") if gt == "auto" else gt      # auto: noc where the files give it
+        if dataset == "kitti2015":
+            return lambda: load_kitti2015(folder, frame, gt=g)
+        if dataset == "kitti2012":
+            return lambda: load_kitti2012(folder, frame, gt=g)
+        return lambda: load_middlebury(folder / frame, gt=g)
+
+    return DatasetFrames([(f, loader(f)) for f in chosen], gt_of)
 
 
 def parse_frames(spec: str | None):

@@ -50,11 +50,15 @@ class Predictor:
     the full network's cost where this (student) model is least sure
     (:mod:`stereojax.matching_cost.cascade`). ``kernels``: "auto", "native" or "xla", the kernels of
     the classical stages (:mod:`stereojax.kernels`), replacing ``config.kernels``; None keeps the config's.
+    ``rectifier``: a :class:`~stereojax.data.stereo_rig.Rectifier`; every pair given to
+    ``__call__``, :meth:`timed`, :meth:`volume` and :meth:`stages` is then a raw pair of its rig,
+    rectified first (the disparity is on the rectified grid; depth from ``rectifier.calibration``).
     """
 
     def __init__(self, config: StereoConfig | None = None, model=None, device=None, memory_limit_gb=None,
                  confidence: bool = False, tile: str = "off", disp_range=None, cascade: Cascade | None = None,
-                 kernels: str | None = None):
+                 kernels: str | None = None, rectifier=None):
+        self.rectifier = rectifier
         self.disp_range = check_disp_range(disp_range)
         config = (config or preset("census")).validate()
         if kernels is not None:
@@ -142,6 +146,7 @@ class Predictor:
         bands: (left, right) band offsets ``i32[H, W]`` of a banded config, in the chain's
         disparities (each pixel's band is offset .. offset + band.width - 1), used instead of the
         coarse pass (:class:`stereojax.inference.sequence.Sequence` gives them from its prior)."""
+        left, right = self.rectified(left, right)
         limits = self.limits(pixel_range, np.shape(left))
         if bands is not None:
             if not self.config.banded:
@@ -151,6 +156,10 @@ class Predictor:
         if rows is not None:
             return self.in_strips(left, right, rows, limits=limits)
         return self.run(*self.prepare(left, right), limits)
+
+    def rectified(self, left, right):
+        """The pair rectified by this predictor's ``rectifier`` (unchanged without one)."""
+        return (left, right) if self.rectifier is None else self.rectifier.rectify(left, right)
 
     def strip_rows(self, left) -> int | None:
         """With ``tile="auto"``, the rows per strip when the whole frame would not fit the memory
@@ -177,7 +186,7 @@ class Predictor:
 
         if self.cascade is not None:
             raise ConfigError("volume() keeps one network's cost; a cascade mixes two (use its student's Predictor)")
-        gl, gr = self.prepare(left, right)
+        gl, gr = self.prepare(*self.rectified(left, right))
         shape = bucket_shape(*gl.shape)
         lp, rp, valid = pad_to(gl, shape), pad_to(gr, shape), np.array(gl.shape, np.int32)
         cost, right_offset = volume_padded(lp, rp, valid, self.config, self.variables, self.net)
@@ -201,11 +210,11 @@ class Predictor:
     def timed(self, left, right, phases=None, pixel_range=None) -> tuple[np.ndarray, dict]:
         """(disparity, timings) of a pair, compilation timed apart
         (:func:`stereojax.inference.reporting.timed`)."""
-        return reporting.timed(self, left, right, phases, pixel_range)
+        return reporting.timed(self, *self.rectified(left, right), phases, pixel_range)
 
     def stages(self, left, right) -> dict[str, np.ndarray]:
         """Every intermediate result (see :func:`stages`)."""
-        return stages(left, right, self.config, self.model, self.memory_limit_gb)
+        return stages(*self.rectified(left, right), self.config, self.model, self.memory_limit_gb)
 
 
 def disparity(left: Any, right: Any, config: StereoConfig | None = None, params=None,

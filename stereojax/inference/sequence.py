@@ -180,10 +180,13 @@ class Sequence:
             f = seq.push(left, right)      # f.disparity, f.confidence, f.record
 
     ``config``/``model``: the chain, as for :class:`Predictor` (``device``, ``cascade`` too).
-    ``settings``: :class:`PriorSettings`.
+    ``settings``: :class:`PriorSettings`. ``rectifier``: a
+    :class:`~stereojax.data.stereo_rig.Rectifier`: the frames are raw pairs of its rig, rectified first.
     """
 
-    def __init__(self, config, model=None, settings: PriorSettings | None = None, device=None, cascade=None):
+    def __init__(self, config, model=None, settings: PriorSettings | None = None, device=None, cascade=None,
+                 rectifier=None):
+        self.rectifier = rectifier
         self.settings = settings or PriorSettings()
         self.full = Predictor(config, model, device, confidence=True, cascade=cascade)
         narrow = self.full.config
@@ -214,6 +217,8 @@ class Sequence:
     def push(self, left, right) -> Frame:
         """The next frame's disparity, with the previous frame's as its prior where that holds."""
         t0 = time.perf_counter()
+        if self.rectifier is not None:
+            left, right = self.rectifier.rectify(left, right)
         shape = tuple(np.shape(left)[:2])
         record = {"frame": self.index}
         prior = None

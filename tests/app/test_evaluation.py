@@ -3,6 +3,7 @@ ground-truth pixels apart, and an evaluation that continues from its per-frame r
 
 import dataclasses
 import json
+import sys
 
 import cv2
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 import stereojax
 from stereojax import metrics
 from stereojax.app.evaluation import chain_method, evaluate_frames, format_table, sgbm_method
+from stereojax.data import io
 from stereojax.data.datasets import StereoSample
 
 from ..helpers import fake_kitti, shifted_pair
@@ -150,3 +152,104 @@ def test_evaluate_continues_from_its_records_with_the_mean_of_an_uninterrupted_r
     _cli(["evaluate", "--data", root, "--dataset", "kitti2015", "--max-disp", "24", "--method", "census",
           "--out", part], capsys)
     assert json.loads((part / "results.json").read_text())["reused"] == []
+
+
+# ---- which ground truth evaluate scores (issue 55, item 4) ---------------------------------------
+
+def _fake_middlebury(root, masked=("withmask",), plain=("nomask",)):
+    """Middlebury scenes of a shifted pair (d = 3): ``masked`` ones with mask0nocc.png (255 on a box
+    of 30 x 50 px), ``plain`` ones with disp0GT.pfm only (no mask, no disp1GT.pfm: no non-occluded GT)."""
+    for i, name in enumerate((*masked, *plain)):
+        scene = root / name
+        left, right = shifted_pair(3, h=48, w=80, seed=i)
+        io.write_png(scene / "im0.png", left)
+        io.write_png(scene / "im1.png", right)
+        gt = np.full(left.shape, 3.0, np.float32)
+        gt[:, :4] = np.inf                             # no ground truth on the left strip
+        io.write_pfm(scene / "disp0GT.pfm", gt)
+        if name in masked:
+            mask = np.full(left.shape, 128, np.uint8)
+            mask[10:40, 20:70] = 255
+            io.write_png(scene / "mask0nocc.png", mask)
+    return root
+
+
+def _evaluate_with_default_gt(argv, capsys):
+    """``stereojax evaluate ARGV`` without ``--gt`` (the default, auto): (exit code, stdout, stderr)."""
+    from stereojax.app.parser import build_parser
+
+    argv = [str(a) for a in argv]
+    assert build_parser().parse_args(argv).gt == "auto"
+    return _cli(argv, capsys)
+
+
+def test_default_gt_scores_noc_where_the_data_has_it_else_all_pixels_and_says_so(tmp_path, capsys):
+    root = _fake_middlebury(tmp_path / "mb")
+    out = tmp_path / "o"
+    code, stdout, err = _evaluate_with_default_gt(["evaluate", "--data", root, "--dataset", "middlebury", *FAST,
+                                                   "--out", out], capsys)
+    assert code == 0, err
+    line = [s for s in stdout.splitlines() if s.startswith("stereojax: ground truth:")]
+    assert len(line) == 1 and "non-occluded pixels on 1 frame(s)" in line[0], stdout
+    assert "all pixels on the 1 without" in line[0] and "nomask" in line[0] and "--gt occ" in line[0]
+    res = json.loads((out / "results.json").read_text())
+    rows = {r["frame"]: r for r in res["frames"]}
+    assert set(rows) == {"withmask", "nomask"}                    # nothing skipped
+    assert rows["withmask"]["gt"] == "noc" and rows["withmask"]["pipeline"]["n_gt"] == 30 * 50
+    assert rows["nomask"]["gt"] == "occ" and rows["nomask"]["pipeline"]["n_gt"] == 48 * (80 - 4)
+    assert "all pixels on nomask" in (out / "results.md").read_text()
+    assert (out / "error_legend.png").exists()
+
+
+def test_default_gt_on_data_without_noc_masks_scores_all_pixels(tmp_path, capsys):
+    root = _fake_middlebury(tmp_path / "mb", masked=(), plain=("a", "b"))
+    code, stdout, err = _evaluate_with_default_gt(["evaluate", "--data", root, "--dataset", "middlebury", *FAST,
+                                                   "--out", tmp_path / "o"], capsys)
+    assert code == 0, err
+    assert "stereojax: ground truth: all pixels, since no frame has non-occluded ground truth" in stdout
+    res = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert [r["gt"] for r in res["frames"]] == ["occ", "occ"]
+
+
+def test_gt_noc_that_the_data_cannot_serve_names_gt_occ_and_leaves_no_folder(tmp_path, capsys):
+    root = _fake_middlebury(tmp_path / "mb", masked=(), plain=("a",))
+    out = tmp_path / "new" / "o"
+    code, _, err = _cli(["evaluate", "--data", root, "--dataset", "middlebury", *FAST, "--gt", "noc",
+                         "--out", out], capsys)
+    assert code == 2
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("stereojax evaluate: error: no noc ground truth for 1 frame(s): a") and "--gt occ" in last
+    assert not (tmp_path / "new").exists()                        # what this run made is gone
+    # a folder that already held the user's files keeps them, and gets nothing
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    assert _cli(["evaluate", "--data", root, "--dataset", "middlebury", *FAST, "--gt", "noc",
+                 "--out", mine], capsys)[0] == 2
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+
+
+def test_gt_noc_with_some_frames_unscorable_warns_with_the_way_to_score_them(tmp_path, capsys):
+    root = _fake_middlebury(tmp_path / "mb")
+    code, _, err = _cli(["evaluate", "--data", root, "--dataset", "middlebury", *FAST, "--gt", "noc",
+                         "--out", tmp_path / "o"], capsys)
+    assert code == 0
+    assert "warning: no noc ground truth for 1 frame(s): nomask; skipped; --gt occ scores all pixels" in err
+
+
+def test_default_gt_on_the_shared_middlebury_scenes(data_root, tmp_path, capsys):
+    """The shared scenes: the 2005/2006 ones get their non-occluded mask from the left-right check of
+    disp0GT/disp1GT, Tsukuba its mask0nocc.png; Aloe_opencv (disp0GT.pfm only) has none."""
+    from stereojax.data.datasets import load_dataset
+
+    scenes = ["Aloe_opencv", "Reindeer_2006H", "Tsukuba_2001"]
+    items = load_dataset(data_root, "middlebury", scenes, gt="auto")
+    assert items.gt_of == {"Aloe_opencv": "occ", "Reindeer_2006H": "noc", "Tsukuba_2001": "noc"}
+    tsukuba = dict(items)["Tsukuba_2001"]()
+    assert tsukuba.gt_noc_valid is not None and (tsukuba.gt_valid == tsukuba.gt_noc_valid).all()
+    aloe = dict(items)["Aloe_opencv"]()
+    assert aloe.gt is not None and aloe.gt_noc_valid is None
+    out = tmp_path / "o"
+    code, _, err = _cli(["evaluate", "--data", data_root, "--dataset", "middlebury", "--frames", "Aloe_opencv",
+                         "--gt", "noc", *FAST, "--out", out], capsys)
+    assert code == 2 and "--gt occ" in err.strip().splitlines()[-1] and not out.exists()

@@ -37,10 +37,24 @@ def test_depth_colour_runs_near_red_to_far_blue_and_greys_the_unreliable():
     assert near[0] > near[2] and far[2] > far[0]                # red near, blue far
     assert (rgb[:, :3] == 0).all()                              # no depth: black
     assert (rgb[0, 3:, 0] == rgb[0, 3:, 1]).all() and (rgb[0, 3:, 1] == rgb[0, 3:, 2]).all()   # grey
-    assert rgb[0, 3:].max() < 128                               # at half brightness
+    assert (rgb[0, 3:] == 128).all()                            # at half brightness
     assert 2.0 <= scale["near"] < scale["far"] <= 20.0 and scale["unit"] == "m"
     assert scale["reliable_to_m"] == 20.0 and 70 < scale["reliable_share_pct"] < 80
 
+
+def test_far_unreliable_depth_is_half_bright_grey_not_the_black_of_no_depth():
+    """Issue 55: the grey followed the colour's brightness, so the far end (Turbo's dark blue) came out
+    near black, the colour of "no depth"."""
+    z = np.tile(np.linspace(2.0, 20.0, 100, dtype=np.float32), (4, 1))
+    z[:, -10:] = 300.0                                          # far past the reliable depths (sky)
+    z[:, :3] = 0.0                                              # no depth
+    reliable = np.ones_like(z, bool)
+    reliable[:, -10:] = False
+    reliable[:, 3:6] = False                                    # near and unreliable too
+    rgb, scale = depth_color(z, reliable)
+    assert (rgb[:, -10:] == 128).all() and (rgb[:, 3:6] == 128).all()
+    assert (rgb[:, :3] == 0).all()
+    assert scale["unreliable"] == [128, 128, 128] and scale["no_depth"] == [0, 0, 0]
 
 def test_write_prediction_writes_the_colour_depth_its_scale_and_mask(tmp_path):
     disp = np.full((20, 30), 25.0, np.float32)
@@ -144,3 +158,37 @@ def test_two_identical_batches_started_together(tmp_path):
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".") and p.name != ".stereojax.lock") == []
     for n in "abc":
         assert (out / n / "frame.json").is_file()
+
+
+def test_ctrl_c_on_a_single_pair_ends_the_progress_line_and_leaves_no_empty_folder(tmp_path):
+    """Issue 55: Ctrl-C while one pair compiles printed "interrupted" on the open progress line
+    ("stereojax: compiling ... stereojax predict: interrupted") and left the empty --out folder."""
+    import select
+    import signal
+    import time
+
+    left, right = _folders(tmp_path, ["a"])
+    out = tmp_path / "new" / "o"
+    proc = subprocess.Popen([sys.executable, "-m", "stereojax.app.cli", "predict", str(left / "a.png"),
+                             str(right / "a.png"), "--out", str(out), *FAST],
+                            env=_env(tmp_path / "c"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    seen, deadline = b"", time.monotonic() + 240
+    try:
+        while b"compiling" not in seen and time.monotonic() < deadline:   # a fresh cache: it compiles
+            if select.select([proc.stdout], [], [], 1.0)[0]:
+                chunk = os.read(proc.stdout.fileno(), 4096)
+                if not chunk:
+                    break
+                seen += chunk
+        assert b"compiling" in seen, seen.decode()
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=240)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    text = (seen + rest).decode()
+    assert proc.returncode == 130, text
+    assert "\nstereojax predict: interrupted" in text, text      # on its own line
+    assert "Traceback" not in text
+    assert not out.exists() and not (tmp_path / "new").exists()

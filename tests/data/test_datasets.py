@@ -100,6 +100,19 @@ def test_kitti2015_errors(tmp_path):
         ds.load_kitti2015(root, "000007")
 
 
+def test_kitti_loaders_on_a_missing_or_empty_folder_say_so(tmp_path):
+    """Issue 55: a missing folder was "unknown frame ...; available: none"."""
+    for load in (ds.load_kitti2015, ds.load_kitti2012):
+        with pytest.raises(StereoInputError, match=r"^no such folder: \S*nope \(expected a KITTI 201[25] training/") as e:
+            load(tmp_path / "nope", "000000")
+        assert "available" not in str(e.value) and "\n" not in str(e.value)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(StereoInputError, match=r"^no KITTI 2015 pairs in \S*empty: expected image_2/ and image_3/"):
+        ds.load_kitti2015(tmp_path / "empty", "000000")
+    with pytest.raises(StereoInputError, match=r"^no KITTI 2012 pairs in \S*empty: expected image_0/ and image_1/"):
+        ds.load_kitti2012(tmp_path / "empty", "000000")
+
+
 # ---- KITTI 2012 --------------------------------------------------------------------------------
 
 def test_kitti2012_prefers_grey_falls_back_to_colour(tmp_path):
@@ -187,6 +200,22 @@ def test_load_dataset_resolves_roots_and_checks_frames(tmp_path):
     with pytest.raises(StereoInputError, match="does not exist"):
         ds.load_dataset(tmp_path / "nope", "kitti2015")
 
+
+def test_load_dataset_auto_reads_each_frame_with_the_ground_truth_its_files_give(tmp_path):
+    root = _kitti2015(tmp_path / "k15", frames=("000003", "000007"), occ=("000003", "000009"), calib=False)
+    io.write_png(root / "image_2" / "000009_10.png", _img(1))        # all-pixel GT only
+    io.write_png(root / "image_3" / "000009_10.png", _img(2))
+    io.write_png(root / "image_2" / "000011_10.png", _img(1))        # no GT at all
+    io.write_png(root / "image_3" / "000011_10.png", _img(2))
+    items = ds.load_dataset(root, "kitti2015", gt="auto")
+    assert items.gt_of == {"000003": "noc", "000007": "noc", "000009": "occ", "000011": None}
+    loaded = {f: load() for f, load in items}
+    np.testing.assert_array_equal(loaded["000003"].gt_valid, _gt(3)[1])         # noc, not occ
+    np.testing.assert_array_equal(loaded["000009"].gt_valid, _gt(4)[1])         # occ, the only one
+    assert loaded["000009"].gt_noc_valid is None and loaded["000011"].gt is None
+    assert ds.load_dataset(root, "kitti2015", gt="noc").gt_of is None
+    with pytest.raises(StereoInputError, match="gt must be 'noc', 'occ' or 'auto'"):
+        ds.load_dataset(root, "kitti2015", gt="all")
 
 def test_calibration_rejects_bad_values():
     with pytest.raises(StereoInputError, match="baseline"):

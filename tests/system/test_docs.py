@@ -85,3 +85,19 @@ def test_speed_table_has_the_jax_kernel_rows_when_the_bench_timed_them(tmp_path)
     assert lines[i + 1] == f"| census chain, JAX kernels (`--kernels xla`) | {10 * sg:.2f} | 10× |"
     assert f"| `kitti2015_compact`, JAX kernels (`--kernels xla`) | {40 * sg:.2f} | 40× |" in lines
     assert [line for line in lines if "JAX kernels" not in line] == before.splitlines()
+
+
+def test_usage_explains_the_two_sgbm_rows_where_it_describes_sgbm():
+    """Issue 55: "SGBM left-padded / unpadded", the rows of `evaluate --sgbm`'s table, was explained
+    nowhere a user looks. The bullet of docs/usage.md that describes --sgbm names both rows as the table
+    does and says what the padding is."""
+    from stereojax.app.evaluation import LABELS
+
+    usage = (ROOT / "docs" / "usage.md").read_text()
+    bullets = [b for b in usage.split("\n* ") if "`--sgbm` scores" in b]
+    assert len(bullets) == 1, "docs/usage.md: no bullet says what `--sgbm` scores"
+    text = " ".join(bullets[0].split())
+    for key in ("sgbm", "sgbm_unpadded"):
+        assert f'"{LABELS[key]}"' in text, LABELS[key]              # the row's name, as the table prints it
+    assert "to the left of both images" in text and "first column" in text and "crops them off" in text
+    assert "no estimate in those first N columns" in text
