@@ -296,23 +296,52 @@ def cmd_train(args) -> int:
     # imported here, not at the top: training brings optax and the training loop, which a
     # predict, evaluate or demo process never needs (tests/system/test_speed.py checks it)
     from stereojax.learning.train import (TrainConfig, config_from_options, maybe_initialize_distributed,
-                                          train_on_dataset)
+                                          net_from_init, train_on_dataset)
 
     maybe_initialize_distributed()
     out = output_folder(args.out)
     if args.config:
         cfg = TrainConfig.from_file(args.config)
     else:
-        cfg = config_from_options(args.preset, args.head, args.loss, args.features,
+        cfg = config_from_options(args.preset, args.head or "downsize", args.loss, args.features,
                                   args.widths,
                                   args.distill_weight if args.distill else None, args.augment,
                                   steps=args.steps, seed=args.seed, delta=args.delta, lr=args.lr,
                                   checkpoint_every=args.checkpoint_every)
+        if args.init:                  # the network of the model it starts from
+            cfg = net_from_init(cfg, args.init, args.features, args.widths, args.head)
     if args.checkpoint_every:          # beside a --config file too
         cfg = dataclasses.replace(cfg, checkpoint_every=args.checkpoint_every).validate()
     summary = train_on_dataset(cfg, args.data, args.dataset, args.frames, args.val_frames, out,
                                resume=args.resume, devices=args.devices, init=args.init, distill=args.distill)
     print(json.dumps(summary, indent=2, default=_json_default))
+    return 0
+
+
+def cmd_tune(args) -> int:
+    from stereojax.app.tune import tune
+    from stereojax.data.datasets import search_range
+    from stereojax.models.registry import check_weights_exist, shipped_name
+
+    if args.weights in ("kitti2015", "kitti2015_compact", "middlebury") or shipped_name(args.weights):
+        raise ConfigError(f"{args.weights} is a shipped model with its own searched card; tune a checkpoint of "
+                          "your own (e.g. one from stereojax train --init ...)")
+    check_weights_exist(args.weights)
+    if args.rounds < 1:
+        raise ConfigError(f"--rounds must be at least 1, got {args.rounds}")
+    gt = "noc" if args.dataset.startswith("kitti") else "occ"
+    samples = [load() for _, load in load_dataset(args.data, args.dataset, parse_frames(args.frames), gt=gt)]
+    samples = [s for s in samples if s.gt is not None]
+    if not samples:
+        raise StereoInputError(f"no frame of {args.frames} has ground truth: tune needs frames with ground truth")
+    enable()
+    threshold = "bad3" if args.dataset.startswith("kitti") else "bad2+bad3"
+    print(f"stereojax tune: {Path(args.weights).name} on {len(samples)} frames, space {args.space}, "
+          f"{args.rounds} round(s), mean {threshold.replace('+', ' and ')} %", flush=True)
+    result = tune(args.weights, samples, lambda s: search_range(args.dataset, s, args.max_disp), args.space,
+                  args.rounds, threshold)
+    print(f"stereojax tune: {result['start']:.3f} -> {result['best']:.3f} % with "
+          f"{result['changes'] or 'no change'} -> {result['card']}")
     return 0
 
 
@@ -351,7 +380,7 @@ def _warning_printer(command: str):
 
 
 COMMANDS = {"predict": cmd_predict, "evaluate": cmd_evaluate, "demo": cmd_demo, "train": cmd_train,
-            "bench": cmd_bench, "calibrate": cmd_calibrate}
+            "bench": cmd_bench, "calibrate": cmd_calibrate, "tune": cmd_tune}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -194,7 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "paper's schedule, 240 000 steps; tiny: 8 maps for 12 steps, for tests -- it learns nothing")
     sp.add_argument("--checkpoint-every", type=int, metavar="N", help="write OUT/checkpoint.msgpack every N steps "
                     "(default: the preset's, 1000 for cpu); SIGINT/SIGTERM also write one")
-    sp.add_argument("--head", default="downsize", choices=["downsize", "uniform", "cosine"])
+    sp.add_argument("--head", choices=["downsize", "uniform", "cosine"], help="the network's head (default "
+                    "downsize, or --init's)")
     sp.add_argument("--loss", choices=["bce", "relaxed", "hinge"], help="default: relaxed, or hinge for cosine")
     sp.add_argument("--delta", type=float, help="margin of the relaxed loss (default 0.05)")
     sp.add_argument("--steps", type=int)
@@ -204,7 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--augment", action="store_true", help="MC-CNN-style patch augmentation (rotation, "
                     "scale, shear, brightness and contrast; right patches get their own small difference)")
     sp.add_argument("--init", help="start from these weights (a checkpoint or a shipped model name) "
-                    "instead of random ones; the optimiser and schedule start afresh")
+                    "instead of random ones, with their network (tower and head) and their card's chain "
+                    "settings, marked as inherited; the optimiser and schedule start afresh")
     sp.add_argument("--lr", type=float, help="initial learning rate (default: the preset's, 0.02)")
     sp.add_argument("--features", type=int, help="feature maps of the tower (default: the preset's, 64 for cpu)")
     sp.add_argument("--widths", help="hidden widths of a dense head, comma separated (default: the head's, "
@@ -215,6 +217,18 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--devices", type=int, help="data-parallel over this many devices (default: all); "
                     "the batch must divide by it")
     sp.add_argument("--out", required=True)
+
+    sp = sub.add_parser("tune", help="search the chain settings of your own checkpoint on your own frames "
+                        "with ground truth, and write them as its card (NAME.json beside NAME.msgpack)")
+    sp.add_argument("--weights", required=True, help="the checkpoint to tune (not a shipped model)")
+    sp.add_argument("--data", required=True, help="data root (e.g. ../shared/data/kitti2015/training)")
+    sp.add_argument("--dataset", required=True, choices=["kitti2015", "kitti2012", "middlebury"])
+    sp.add_argument("--frames", required=True, help="training frames with ground truth, e.g. 000001-000020 (never "
+                    "the frames you will report)")
+    sp.add_argument("--space", default="small", choices=["small", "full", "local"], help="small (default): P1, P2, "
+                    "CBCA passes, LR tolerance, median; full: 11 settings; local: one step around the current ones")
+    sp.add_argument("--rounds", type=int, default=1, help="passes over the settings (default 1)")
+    sp.add_argument("--max-disp", type=int, help="default: 228 for KITTI, ndisp/GT for Middlebury")
 
     sp = sub.add_parser("bench", help="time every stage on a KITTI-sized frame (and OpenCV SGBM)")
     sp.add_argument("--out", default="experiments/results")

@@ -563,6 +563,39 @@ def config_from_options(preset: str = "cpu", head: str = "downsize", loss: str |
     return with_augmentation(cfg) if augment else cfg
 
 
+def inherit_card(init, checkpoint) -> Path | None:
+    """The chain settings of the model a run starts from (``--init``), written as the card of its
+    checkpoint, saying where they come from: a fine-tuned model then runs with its parent's
+    searched settings, and the first printed line says they were not searched for it. None when
+    ``init`` has no card."""
+    from stereojax.models.registry import chain_settings, write_card
+
+    chain = chain_settings(weights_path(init))
+    if not chain:
+        return None
+    Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
+    name = init if isinstance(init, str) and "/" not in init else Path(init).name
+    return write_card(checkpoint, chain, chain_from=f"inherited from {name} (searched for it, not for these "
+                      "weights; stereojax tune searches them)")
+
+
+def net_from_init(cfg: "TrainConfig", init, features: int | None, widths, head: str | None) -> "TrainConfig":
+    """``train --init MODEL``: the network of MODEL (its tower's maps, its head and widths), unless
+    the options name another (a one-line error that names the flags)."""
+    net = load_model(weights_path(init)).net
+    if isinstance(widths, str):
+        widths = parse_widths(widths)
+    asked = {"--features": (features, net.features), "--widths": (tuple(widths) if widths else None, net.widths),
+             "--head": (head, net.head)}
+    wrong = [f"{flag} {','.join(map(str, got)) if isinstance(got, tuple) else got}"
+             for flag, (got, has) in asked.items() if got is not None and got != has]
+    if wrong:
+        raise ConfigError(f"--init {init} has a tower of {net.features} maps and a {net.head} head "
+                          f"{','.join(map(str, net.widths))}; {' '.join(wrong)} do not fit it (drop them: --init "
+                          "takes the network from the model)")
+    return dataclasses.replace(cfg, net=net).validate()
+
+
 def train_on_dataset(cfg: TrainConfig, data, dataset: str, frames: str, val_frames: str | None, out_dir,
                      resume: bool = False, devices: int | None = None, init: str | None = None,
                      distill: str | None = None) -> dict:
@@ -585,6 +618,7 @@ def train_on_dataset(cfg: TrainConfig, data, dataset: str, frames: str, val_fram
     if init:
         model = load_model(weights_path(init))
         info["init"] = init
+        inherit_card(init, Path(out_dir) / "checkpoint.msgpack")
     if cfg.distill:
         if not distill:
             raise ConfigError("the training config distils (distill > 0): name the teacher with --distill")

@@ -121,6 +121,47 @@ def chain_settings(weights) -> dict:
         return {}
 
 
+def write_card(weights, chain: dict, **info) -> Path:
+    """Write (or update) the card beside ``weights`` (``NAME.json`` beside ``NAME.msgpack``): its
+    ``"chain"`` entry (StereoConfig overrides of ``preset("learned")``) and ``info`` (e.g.
+    ``chain_from``: where the settings come from). A shipped model's card is never written.
+    Returns the card's path."""
+    from stereojax.data.io import write_json
+
+    weights = Path(weights)
+    if shipped_name(weights):
+        raise ConfigError(f"{weights.name} is a shipped model: its card is not changed (copy the weights first)")
+    card = weights.with_suffix(".json")
+    data = {}
+    if card.is_file():
+        try:
+            data = json.loads(card.read_text())
+        except ValueError:
+            data = {}
+    write_json(card, {**data, "chain": chain, **info})
+    return card
+
+
+def settings_note(weights) -> str | None:
+    """Where a learned model's chain settings come from, for the first printed line: None for a
+    shipped model (its own searched card); else its card's ``chain_from``, or a note that it runs
+    the learned preset's settings, never searched for it."""
+    if weights is None or shipped_name(weights):
+        return None
+    card = Path(weights).with_suffix(".json")
+    if card.is_file():
+        try:
+            data = json.loads(card.read_text())
+        except ValueError:
+            data = {}
+        if data.get("chain_from"):
+            return f"chain settings {data['chain_from']}"
+        if "chain" in data:
+            return f"chain settings from its card {card.name}"
+    return ("the learned preset's default chain settings, never searched for these weights "
+            "(stereojax tune searches them)")
+
+
 def learned_config(weights=None, max_disp: int = 228):
     """``preset("learned", max_disp)`` with the chain settings stored with ``weights`` (a path,
     or a shipped name such as "kitti2015" / "kitti2015_compact"; None: the preset alone). This is the
@@ -199,8 +240,11 @@ class Resolved:
 
     @property
     def chosen_line(self) -> str:
-        """What runs and why, in one line (the first line ``predict`` prints)."""
-        return f"{self.description} ({self.reason})" if self.reason else self.description
+        """What runs and why, in one line (the first line ``predict`` prints); for weights that are
+        not shipped, where their chain settings come from (:func:`settings_note`)."""
+        line = f"{self.description} ({self.reason})" if self.reason else self.description
+        note = settings_note(self.weights) if self.method == "learned" and not self.from_file else None
+        return f"{line}; {note}" if note else line
 
     def with_max_disp(self, max_disp: int) -> "Resolved":
         return dataclasses.replace(self, config=self.config.with_max_disp(max_disp))
