@@ -81,8 +81,9 @@ def score_scenes(names, methods, load, runs: Path, part: str) -> None:
     todo = [n for n in names if not record_path(runs, part, n).is_file()]
     for name in todo:
         t0 = time.perf_counter()
-        result = evaluate_frames([load(name)], methods, lambda s: search_range("middlebury", s, None),
-                                 regions=("noc", "all"))
+        sample = load(name)     # Aloe_opencv has no non-occluded GT (no mask, no right view): all pixels only
+        regions = ("noc", "all") if sample.gt_noc_valid is not None else ("all",)
+        result = evaluate_frames([sample], methods, lambda s: search_range("middlebury", s, None), regions=regions)
         row = result["frames"][0]
         write_json(record_path(runs, part, name), row)
         print(f"  {part} {name} ({row['max_disp']} disparities, {time.perf_counter() - t0:.0f} s): " + ", ".join(
