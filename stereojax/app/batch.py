@@ -31,7 +31,7 @@ from stereojax.app.outputs import (blank_unconfident, folder_lock, output_folder
 from stereojax.app.warnlog import recording
 from stereojax.data.calibration import plausibility_warnings
 from stereojax.data.datasets import load_pair
-from stereojax.data.depth import disparity_to_depth
+from stereojax.data.depth import MEASURABLE_DISP, disparity_to_depth
 from stereojax.data.io import write_json
 from stereojax.data.disp_range import AutoRange, auto_disp_range
 from stereojax.data.rectification import check_rectified
@@ -76,13 +76,15 @@ def frame_key_of_run(run) -> dict:
 def frame_record(run, calib, ply: bool, left_path, right_path, min_confidence: float = 0.0,
                  disp_range=None, max_depth: float | None = None, rectifier=None, frame: str = "rectified") -> dict:
     """What a frame's outputs depend on: :func:`frame_key_of_run`, the calibration, the
-    point-cloud option, the confidence threshold, the disparity-range option (None, [MIN, MAX]
-    or "auto"), ``--max-depth`` (when given) and the two input files."""
+    point-cloud option (with its default depth limit, :data:`~stereojax.data.depth.MEASURABLE_DISP`,
+    when no ``--max-depth`` replaces it), the confidence threshold, the disparity-range option (None,
+    [MIN, MAX] or "auto"), ``--max-depth`` (when given) and the two input files."""
     rng = list(disp_range) if isinstance(disp_range, (tuple, list)) else disp_range
     return {**frame_key_of_run(run),
             "calib": dataclasses.asdict(calib) if calib is not None else None, "ply": bool(ply),
             "min_confidence": float(min_confidence), "disp_range": rng,
             **({"max_depth": float(max_depth)} if max_depth is not None else {}),
+            **({"ply_min_disp": MEASURABLE_DISP} if ply and max_depth is None else {}),
             **({"rectification": rectifier.to_json(), "frame": frame} if rectifier is not None else {}),
             "left": _file_id(left_path), "right": _file_id(right_path)}
 
@@ -449,12 +451,31 @@ def _batch_summary(pairs, rows, skipped, failed, damaged, interrupted, wall: flo
             "unmatched": list(unmatched or [])}
 
 
+def kept_row(out: Path, name: str) -> dict:
+    """``summary.json``'s row of a frame an earlier run completed, read back from its
+    ``frame.json`` (the seconds, size, device, warnings and sequence record of the run that made
+    it; no ``rss_mb``), with ``"kept": true``."""
+    try:
+        stored = json.loads((out / name / MANIFEST).read_text())
+        timings = stored.get("timings") or {}
+        height, width = stored["size"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {"frame": name, "kept": True}
+    return {"frame": name, "seconds": timings.get("seconds"), "compile_s": timings.get("compile_s"),
+            "device": timings.get("device"), "bucket": timings.get("bucket"), "width": int(width),
+            "height": int(height), "rss_mb": None, "warnings": list(stored.get("warnings") or []),
+            **({"sequence": timings["sequence"]} if "sequence" in timings else {}), "kept": True}
+
+
 def predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, devices, overwrite: bool,
                           verify: bool, unmatched, announced, mapper=None, workers: int | None = None,
-                          where: str | None = None) -> dict:
+                          where: str | None = None, keep_skipped: bool = False) -> dict:
     """The batch, with the output folder's lock held. ``mapper(todo)`` yields :func:`frame_work`'s
     triples (default: the local devices, :func:`stereojax.devices.map_frames`); ``workers``: how
-    many frames run at once (for frames/s); ``where``: a line that says where they run."""
+    many frames run at once (for frames/s); ``where``: a line that says where they run.
+    ``keep_skipped``: ``summary.json``'s ``per_frame`` lists the frames kept from an earlier run
+    too, in the pairs' order (:func:`kept_row`; a sequence's every frame), not only the computed
+    ones; the counts and speeds are the computed frames' either way."""
 
 
     devices = list(devices or [])
@@ -502,6 +523,10 @@ def predict_batch_locked(pairs, out: Path, resolve: Callable, opts: dict, device
             interrupted = stop
     summary = _batch_summary(pairs, rows, skipped, failed, damaged, interrupted, time.perf_counter() - t_start,
                              workers, unmatched)
+    if keep_skipped and skipped:
+        order = {p[0]: i for i, p in enumerate(pairs)}
+        every = rows + [kept_row(out, name) for name in skipped]
+        summary["per_frame"] = sorted(every, key=lambda r: order.get(r["frame"], len(order)))
     write_json(out / "summary.json", summary)
     if interrupted:
         interrupted.summary = summary

@@ -210,7 +210,12 @@ def write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=Fal
     ``depth_reliable.png`` (255 where the depth can be trusted, :func:`depth_reliable`, with the
     ``confidence`` map when given); returns the written names. Pixels without an estimate (NaN,
     inf, negative) are 0 in the PNGs and the depth; with ``max_depth``, so are points farther
-    than that (metres), and they are left out of points.ply. to_original(xyz): points.ply in another
+    than that (metres), and they are left out of points.ply. points.ply holds only measurable points:
+    without ``max_depth``, none farther than :func:`stereojax.data.depth.measurable_depth` (where
+    ``d + doffs`` < :data:`~stereojax.data.depth.MEASURABLE_DISP` = 2 px, one pixel of disparity error
+    would more than double the depth: about 190 m on KITTI); ``max_depth`` replaces that limit, farther or
+    nearer. The depth files keep those far pixels (mask them with depth_reliable.png).
+    to_original(xyz): points.ply in another
     frame (the raw left camera's, :meth:`stereojax.data.stereo_rig.Rectifier.to_original`).
 
     points.ply's axes: x right, y down, z forward (OpenCV's camera frame), metres, origin at the
@@ -238,7 +243,8 @@ def write_prediction(out: Path, stem: str, disp, calib=None, image=None, ply=Fal
         written += [f"{stem}depth.png", f"{stem}depth.npy", f"{stem}depth_color.png", f"{stem}depth_color.json",
                     f"{stem}depth_reliable.png"]
         if ply and image is not None:
-            xyz, rgb = depth_mod.point_cloud(disp, image, calib, max_depth=max_depth)
+            far = max_depth if max_depth is not None else depth_mod.measurable_depth(calib)
+            xyz, rgb = depth_mod.point_cloud(disp, image, calib, max_depth=far)
             if to_original is not None:
                 xyz = np.asarray(to_original(xyz), np.float32)
             depth_mod.write_ply(out / f"{stem}points.ply", xyz, rgb)

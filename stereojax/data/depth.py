@@ -18,7 +18,7 @@ import numpy as np
 from stereojax.data.io import atomic_output
 from stereojax.errors import OutputError, StereoInputError, wxh
 
-__all__ = ["disparity_to_depth", "write_depth", "point_cloud", "write_ply"]
+__all__ = ["disparity_to_depth", "write_depth", "point_cloud", "write_ply", "measurable_depth", "MEASURABLE_DISP"]
 
 PathLike = str | os.PathLike
 
@@ -63,6 +63,20 @@ def disparity_to_depth(disp: np.ndarray, baseline: float, focal: float, doffs: f
         ok = np.isfinite(d) & (d >= min_disp) & (denom > 0)
         z = np.where(ok, b * f / np.where(ok, denom, 1.0), 0.0)
     return z.astype(np.float32)
+
+
+#: a depth is measurable where ``d + doffs`` (the denominator of ``Z = B f / (d + doffs)``) is at
+#: least this many pixels: one pixel of disparity error then at most doubles the depth (at 1 px the
+#: same error makes it infinite). On KITTI (B f = 380-390 m px) that is about 190 m; sub-pixel
+#: disparities of the sky reach about 770 m (d = 0.5 px, :func:`disparity_to_depth`'s smallest)
+MEASURABLE_DISP = 2.0
+
+
+def measurable_depth(calib, min_disp: float = MEASURABLE_DISP) -> float:
+    """The farthest depth (metres) a calibration measures: ``baseline * focal / min_disp``, the
+    depth where ``d + doffs = min_disp`` px (:data:`MEASURABLE_DISP`); farther, one pixel of
+    disparity error moves the depth by more than its own size."""
+    return _positive(calib.baseline, "baseline") * _positive(calib.focal, "focal") / _positive(min_disp, "min_disp")
 
 
 def write_depth(path: PathLike, depth: np.ndarray) -> None:

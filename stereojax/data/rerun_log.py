@@ -130,7 +130,8 @@ def log_outputs(log: RerunLog, folder, name: str, calib=None, index: int | None 
         left = np.zeros(disp.shape, np.uint8)
     points = colors = None
     if calib is not None:
-        points, colors = depth_mod.point_cloud(np.where(np.isfinite(disp), disp, 0), left, calib)
+        points, colors = depth_mod.point_cloud(np.where(np.isfinite(disp), disp, 0), left, calib,
+                                               max_depth=depth_mod.measurable_depth(calib))   # as points.ply
         if to_original is not None:
             points = to_original(points)
     log.frame(name, left, disp, conf, depth, calib, points, colors, index, events)

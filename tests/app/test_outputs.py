@@ -192,3 +192,32 @@ def test_ctrl_c_on_a_single_pair_ends_the_progress_line_and_leaves_no_empty_fold
     assert "\nstereojax predict: interrupted" in text, text      # on its own line
     assert "Traceback" not in text
     assert not out.exists() and not (tmp_path / "new").exists()
+
+
+def _ply_z(path):
+    head, body = path.read_bytes().split(b"end_header\n", 1)
+    n = int([ln for ln in head.decode().splitlines() if ln.startswith("element vertex")][0].split()[-1])
+    rec = np.frombuffer(body, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")],
+                        count=n)
+    return rec["z"]
+
+
+def test_the_point_cloud_leaves_out_depths_it_cannot_measure(tmp_path):
+    """points.ply keeps a point only where d + doffs >= 2 px (1 px of disparity error at most doubles
+    its depth): on KITTI's calibration no point beyond B f / 2 = 195 m, not the 780 m of d = 0.5 px.
+    --max-depth replaces that limit, farther as well as nearer; the depth files keep the far pixels."""
+    calib = Calibration(0.54, 721.5)                               # B f = 389.6 m px
+    disp = np.array([[0.6, 1.0, 1.5, 1.99, 2.0, 4.0, 10.0, 40.0, np.inf]], np.float32)
+    image = np.full(disp.shape + (3,), 200, np.uint8)
+    write_prediction(tmp_path / "d", "", disp, calib, image, ply=True)
+    z = _ply_z(tmp_path / "d" / "points.ply")
+    np.testing.assert_allclose(np.sort(z), 389.61 / np.array([40.0, 10.0, 4.0, 2.0]), rtol=1e-4)
+    assert (np.load(tmp_path / "d" / "depth.npy") > 0).sum() == 8          # the depth map keeps them all
+    write_prediction(tmp_path / "far", "", disp, calib, image, ply=True, max_depth=1000)
+    assert _ply_z(tmp_path / "far" / "points.ply").max() == pytest.approx(389.61 / 0.6, rel=1e-4)
+    write_prediction(tmp_path / "near", "", disp, calib, image, ply=True, max_depth=50)
+    np.testing.assert_allclose(np.sort(_ply_z(tmp_path / "near" / "points.ply")), 389.61 / np.array([40.0, 10.0]),
+                               rtol=1e-4)
+    mid = Calibration(0.16, 3740.0, doffs=200.0)                   # Middlebury: d + doffs is never small
+    write_prediction(tmp_path / "m", "", disp, mid, image, ply=True)
+    assert len(_ply_z(tmp_path / "m" / "points.ply")) == 8
