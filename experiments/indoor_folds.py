@@ -151,8 +151,11 @@ def fold(args, load, i: int) -> None:
     rec = search_fold(args, run, train_names, load, model)
     best = StereoConfig.from_dict(rec["config"])
     full = dataclasses.replace(best, band=BandConfig()).validate()
-    methods = {"fold_bands": chain_method(best, model), "fold_full": chain_method(full, model)}
-    score_scenes(held, methods, load, runs, f"fold{i}")
+    both = {"fold_bands": chain_method(best, model), "fold_full": chain_method(full, model)}
+    chosen = {k: v for k, v in both.items() if k == f"fold_{rec['choice']}"}
+    for name in held:   # both variants where it is cheap; only the chosen one on the large scenes (for time)
+        small = load(name).left.shape[0] * load(name).left.shape[1] <= SEARCH_MAX_PIXELS
+        score_scenes([name], both if small or i == 0 else chosen, load, runs, f"fold{i}")
 
 
 def ship(args, load) -> None:
