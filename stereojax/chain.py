@@ -287,6 +287,14 @@ def _confidence(st: State, config) -> State:
                                                                       config.refine.lr_tolerance, config.kernels))
 
 
+def _texture(st: State, config) -> State:
+    r = config.refine
+    if r.texture_full <= 0 or st.confidence is None:
+        return st
+    factor = confidence_measure.texture_factor(st.left, config.cost.census_radius, r.texture_noise, r.texture_full)
+    return st.replace(confidence=st.confidence * factor)
+
+
 def _subpixel(st: State, config) -> State:
     if not config.refine.subpixel:
         return st
@@ -323,6 +331,7 @@ STAGES: list[Stage] = [
     Stage("right view + WTA", _right_view, (("disp_right", "disp_right"),)),
     Stage("left-right check + filling", _lr_fill, (("labels", "labels"), ("disp_filled", "disp"))),
     Stage("confidence", _confidence, (("confidence", "confidence"),)),
+    Stage("confidence texture", _texture, (("confidence_texture", "confidence"),)),
     Stage("sub-pixel", _subpixel, (("disp_subpixel", "disp"),)),
     Stage("median", _median, (("disp_median", "disp"),)),
     Stage("bilateral", _bilateral, (("disparity", "disparity"),)),

@@ -74,3 +74,26 @@ def confidence_volume_xla(vol, disp_wta: jax.Array, disp_right, lr_tolerance: fl
         return confidence(vol.cost, disp_wta, disp_right, lr_tolerance)
     return confidence(vol.cost, disp_wta - vol.offset, None if disp_right is None else disp_right,
                       lr_tolerance, absolute=disp_wta)
+
+
+def texture_share(left: jax.Array, radius: tuple[int, int], noise: float) -> jax.Array:
+    """``f32[H, W]``: the share of the pixels of the ``(2 ry + 1) x (2 rx + 1)`` window around each
+    pixel (``radius`` = (ry, rx), the census window) whose grey level differs from the centre's by
+    more than ``noise``: what a window-based cost has to work on (0 in saturated sky)."""
+    ry, rx = int(radius[0]), int(radius[1])
+    h, w = left.shape
+    pad = jnp.pad(left.astype(jnp.float32), ((ry, ry), (rx, rx)), mode="edge")
+    count = jnp.zeros((h, w), jnp.float32)
+    for dy in range(-ry, ry + 1):
+        for dx in range(-rx, rx + 1):
+            if dy or dx:
+                count = count + (jnp.abs(pad[ry + dy:ry + dy + h, rx + dx:rx + dx + w] - left) > noise)
+    return count / float((2 * ry + 1) * (2 * rx + 1) - 1)
+
+
+def texture_factor(left: jax.Array, radius: tuple[int, int], noise: float, full: float) -> jax.Array:
+    """The confidence's texture term: :func:`texture_share` / ``full``, capped at 1 (1 everywhere
+    when ``full`` is 0)."""
+    if full <= 0:
+        return jnp.ones(left.shape, jnp.float32)
+    return jnp.minimum(texture_share(left, radius, noise) / full, 1.0)
