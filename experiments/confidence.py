@@ -72,7 +72,8 @@ def main():
         gv = s.gt_valid
         err = np.abs(st["disparity"] - s.gt)[gv]
         bad = (err > THRESHOLD).astype(np.float64)
-        maps = terms(st, run.config.refine.lr_tolerance) if args.variants else {"confidence": st["confidence"]}
+        final = st.get("confidence_texture", st["confidence"])     # after the texture term, when on
+        maps = terms(st, run.config.refine.lr_tolerance) if args.variants else {"confidence": final}
         per = {name: curve(m[gv], bad) for name, m in maps.items()}
         per["oracle"] = curve(-err, bad)
         per["random"] = curve(rng.random(len(bad)), bad)
