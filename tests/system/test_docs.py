@@ -101,3 +101,11 @@ def test_usage_explains_the_two_sgbm_rows_where_it_describes_sgbm():
         assert f'"{LABELS[key]}"' in text, LABELS[key]              # the row's name, as the table prints it
     assert "to the left of both images" in text and "first column" in text and "crops them off" in text
     assert "no estimate in those first N columns" in text
+
+
+def test_usage_states_the_point_cloud_axes_where_it_describes_ply():
+    """The PLY's axis convention was only in a docstring (issue 55): usage.md says it beside --ply."""
+    text = (ROOT / "docs" / "usage.md").read_text()
+    at = text.index("a coloured point cloud `points.ply`")
+    near = text[at:at + 400]
+    assert "x right, y down" in near and "z forward" in near and "metres" in near
