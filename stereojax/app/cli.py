@@ -195,7 +195,7 @@ def _predict(args, pairs, batch, out, devices, calib, calib_line, kernels_line=N
     viewer = _viewer(args)                         # a missing rerun-sdk is refused before any work
     if not batch:
         print(pair_line(predict_pair(*pairs[0][1:], out, resolve, phases=Phases(), **opts), out))
-        _log_viewer(viewer, args, out, [(pairs[0][0], out)], calib, sequence=False)
+        _log_viewer(viewer, args, out, [(None, out)], calib, sequence=False, left_path=pairs[0][1])
         return 0
     unmatched = getattr(pairs, "unmatched", [])
     if unmatched:
@@ -230,7 +230,7 @@ def _viewer(args):
     return lambda: RerunLog(args.rerun, args.rerun_serve, name=f"stereojax predict {Path(args.out).name}")
 
 
-def _log_viewer(viewer, args, out: Path, frames, calib, sequence: bool) -> None:
+def _log_viewer(viewer, args, out: Path, frames, calib, sequence: bool, left_path=None) -> None:
     """Log the finished frames (name, folder) to Rerun: a sequence on the frame timeline with its
     fallbacks as text events, a batch under each frame's name."""
     if viewer is None:
@@ -247,7 +247,7 @@ def _log_viewer(viewer, args, out: Path, frames, calib, sequence: bool) -> None:
                 events = [f"{name}: " + (f"no prior ({rec['fallback']})" if rec.get("fallback")
                                          else "prior from the previous frame")]
             log_outputs(log, folder, name, calib, index=i if sequence else None, events=events,
-                        to_original=to_original)
+                        to_original=to_original, left_path=left_path, max_depth=args.max_depth)
     finally:
         log.close()
     if args.rerun:

@@ -57,14 +57,12 @@ class RerunLog:
 
     def frame(self, name: str, left, disparity, confidence=None, depth=None, calib=None, points=None,
               colors=None, index: int | None = None, events=()) -> None:
-        """Log one frame: on the ``frame`` timeline at ``index`` (a sequence), else under
-        ``world/<name>/`` (a batch: each frame its own entity tree)."""
+        """Log one frame: on the ``frame`` timeline at ``index`` (a sequence), under ``world/`` when
+        ``name`` is None (one pair), else under ``world/<name>/`` (a batch: each frame its own tree)."""
         rr, rec = self.rr, self.rec
         if index is not None:
             rec.set_time("frame", sequence=int(index))
-            root = "world"
-        else:
-            root = f"world/{_entity(name)}"
+        root = "world" if index is not None or name is None else f"world/{_entity(name)}"
         h, w = np.shape(disparity)[:2]
         if calib is not None:
             cx = calib.cx if calib.cx is not None else (w - 1) / 2
@@ -82,7 +80,7 @@ class RerunLog:
             rec.log(f"{root}/points", rr.Points3D(np.asarray(points, np.float32),
                                                   colors=None if colors is None else np.asarray(colors, np.uint8)))
         for text in events:
-            rec.log("events" if index is not None else f"{root}/events", rr.TextLog(str(text)))
+            rec.log("events" if root == "world" else f"{root}/events", rr.TextLog(str(text)))
 
     def close(self) -> None:
         self.rec.flush()
@@ -107,11 +105,12 @@ def log_rerun(path, frames, serve: bool = False) -> Path | None:
     return log.path
 
 
-def log_outputs(log: RerunLog, folder, name: str, calib=None, index: int | None = None, events=(),
-                to_original=None) -> None:
+def log_outputs(log: RerunLog, folder, name: str | None, calib=None, index: int | None = None, events=(),
+                to_original=None, left_path=None, max_depth: float | None = None) -> None:
     """Log one frame from what predict wrote into ``folder``: the left image (``left_rectified.png``
-    when the pair was rectified, else ``left``'s file from ``frame.json``, else none), disparity,
-    confidence, depth and the coloured point cloud (from the disparity and ``calib``)."""
+    when the pair was rectified, else ``left_path``, else ``left``'s file from ``frame.json``),
+    disparity, confidence, depth and the coloured point cloud (from the disparity and ``calib``, as
+    far as points.ply goes: ``max_depth``, else the calibration's measurable depth)."""
     from stereojax.data import depth as depth_mod, io
 
     folder = Path(folder)
@@ -119,9 +118,11 @@ def log_outputs(log: RerunLog, folder, name: str, calib=None, index: int | None 
     conf = np.load(folder / "confidence.npy") if (folder / "confidence.npy").is_file() else None
     depth = np.load(folder / "depth.npy") if (folder / "depth.npy").is_file() else None
     left = None
-    if (folder / "left_rectified.png").is_file():
+    if (folder / "left_rectified.png").is_file():          # a rectified pair: the image matched
         left = io.read_image(folder / "left_rectified.png")
-    elif (folder / "frame.json").is_file():
+    elif left_path is not None:
+        left = io.read_image(left_path)
+    elif (folder / "frame.json").is_file():                # a batch frame: its recorded input
         import json
 
         src = json.loads((folder / "frame.json").read_text()).get("left", {}).get("path")
@@ -130,8 +131,8 @@ def log_outputs(log: RerunLog, folder, name: str, calib=None, index: int | None 
         left = np.zeros(disp.shape, np.uint8)
     points = colors = None
     if calib is not None:
-        points, colors = depth_mod.point_cloud(np.where(np.isfinite(disp), disp, 0), left, calib,
-                                               max_depth=depth_mod.measurable_depth(calib))   # as points.ply
+        far = max_depth if max_depth is not None else depth_mod.measurable_depth(calib)     # as points.ply
+        points, colors = depth_mod.point_cloud(np.where(np.isfinite(disp), disp, 0), left, calib, max_depth=far)
         if to_original is not None:
             points = to_original(points)
     log.frame(name, left, disp, conf, depth, calib, points, colors, index, events)

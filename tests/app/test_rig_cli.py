@@ -192,3 +192,18 @@ def test_a_calibration_that_does_not_rectify_the_images_is_warned_about(chess, s
     code, _, err = _cli(["predict", chess / "left01.jpg", chess / "right01.jpg", "--calib", stereo_yaml,
                          "--rectify", "--out", tmp_path / "p", "--method", "census", "--max-disp", "32"], capsys)
     assert code == 0 and "does not rectify" not in err and "does not look rectified" not in err
+
+
+def test_rerun_log_of_one_pair_holds_its_image_under_world(chess, stereo_yaml, tmp_path, capsys):
+    """One pair logs under world/ (not a frame name), with the image it matched (not a blank)."""
+    pytest.importorskip("rerun", reason="rerun-sdk (the viewer extra) is not installed")
+    from rerun.chunk import RrdReader
+
+    rrd = tmp_path / "one.rrd"
+    code, _, err = _cli(["predict", chess / "left02.jpg", chess / "right02.jpg", "--calib", stereo_yaml, "--rectify",
+                         "--out", tmp_path / "o", "--rerun", rrd, *CENSUS], capsys)
+    assert code == 0, err
+    chunks = {c.entity_path: c.to_record_batch() for c in RrdReader(rrd).stream()}
+    buf = chunks["/world/camera/image"].column("Image:buffer").to_pylist()[0]
+    want = io.read_image(tmp_path / "o" / "left_rectified.png")
+    assert np.array_equal(np.frombuffer(bytes(buf), np.uint8), want.reshape(-1))
