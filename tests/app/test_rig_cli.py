@@ -206,4 +206,4 @@ def test_rerun_log_of_one_pair_holds_its_image_under_world(chess, stereo_yaml, t
     chunks = {c.entity_path: c.to_record_batch() for c in RrdReader(rrd).stream()}
     buf = chunks["/world/camera/image"].column("Image:buffer").to_pylist()[0]
     want = io.read_image(tmp_path / "o" / "left_rectified.png")
-    assert np.array_equal(np.frombuffer(bytes(buf), np.uint8), want.reshape(-1))
+    assert np.array_equal(np.frombuffer(bytes(buf[0]), np.uint8), want.reshape(-1))
