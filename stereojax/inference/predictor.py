@@ -23,7 +23,7 @@ from stereojax.errors import ConfigError
 from stereojax.inference import reporting, tiling
 from stereojax.inference.compile_cache import bucket_shape, ensure_enabled
 from stereojax.matching_cost.cascade import Cascade  # noqa: F401  (re-exported as stereojax.Cascade)
-from stereojax.inference.prepare import check_disp_range, check_pixel_range, prepare_pair, shift_right_image
+from stereojax.inference.prepare import check_disp_range, check_pixel_range, prepare_pair, range_pair
 from stereojax.inference.programs import (CompiledChain, Volume, compiled_chain, default_device, disparity_from_volume,
                                           disparity_grey, is_kept, pad_to, stages_grey, variable_shapes,
                                           volume_padded)
@@ -88,22 +88,39 @@ class Predictor:
         self.variables = variables
 
     def prepare(self, left, right) -> tuple[np.ndarray, np.ndarray]:
-        """Grey ``f32[H, W]`` images of a pair, checked against this predictor's config (with a
-        ``disp_range``, the right image moved by its MIN: :func:`shift_right_image`)."""
+        """Grey ``f32[H, W]`` images of a pair, checked against this predictor's config: the chain's
+        input. With a ``disp_range`` of MIN > 0, the pair without the MIN left columns that no
+        disparity of the range can match (:func:`~stereojax.inference.prepare.range_pair`; the
+        images are ``W - MIN`` wide); MIN < 0: the right image moved by MIN."""
         if self.disp_range is not None and np.ndim(left) >= 2:
             check_disp_range(self.disp_range, np.shape(left)[1])
         gl, gr = prepare_pair(left, right, self.config, self.memory_limit_gb)
         if self.disp_range is None:
             return gl, gr
-        return gl, shift_right_image(gr, self.disp_range[0])
+        return range_pair(gl, gr, self.disp_range[0], self.config)
+
+    def _cut(self) -> int:
+        """The left columns :meth:`prepare` leaves out (a ``disp_range`` MIN > 0), else 0."""
+        return 0 if self.disp_range is None else max(self.disp_range[0], 0)
 
     def _offset(self, out):
-        """The chain's disparities moved back to the original pair's (``disp_range`` MIN added)."""
+        """The chain's disparities moved back to the original pair's (``disp_range`` MIN added);
+        with MIN > 0, the MIN left columns the chain did not search put back: the disparity of
+        the first searched column, confidence 0 (no disparity of the range has a match there)."""
         if self.disp_range is None or self.disp_range[0] == 0:
             return out
+        lo, cut = np.float32(self.disp_range[0]), self._cut()
+
+        def back(disp):
+            disp = np.asarray(disp) + lo
+            return np.concatenate([np.repeat(disp[:, :1], cut, axis=1), disp], axis=1) if cut else disp
+
         if self.confidence:
-            return out[0] + np.float32(self.disp_range[0]), out[1]
-        return out + np.float32(self.disp_range[0])
+            conf = np.asarray(out[1])
+            if cut:
+                conf = np.concatenate([np.zeros((conf.shape[0], cut), conf.dtype), conf], axis=1)
+            return back(out[0]), conf
+        return back(out)
 
     def _key(self, height: int, width: int, limited: bool = False, given_bands: bool = False):
 
@@ -111,7 +128,8 @@ class Predictor:
                 self.confidence, bool(limited), self.cascade, bool(given_bands))
 
     def is_compiled(self, height: int, width: int, limited: bool = False, given_bands: bool = False) -> bool:
-        """Whether the chain for a ``height x width`` pair is compiled in this process already."""
+        """Whether the chain for a ``height x width`` pair is compiled in this process already (the
+        size of the chain's input, :meth:`prepare`'s, which a ``disp_range`` MIN > 0 narrows)."""
         return is_kept(self._key(height, width, limited, given_bands))
 
     def compiled(self, height: int, width: int, limited: bool = False,
@@ -130,7 +148,8 @@ class Predictor:
         if pixel_range is None:
             return None
         lo = 0 if self.disp_range is None else self.disp_range[0]
-        return check_pixel_range(pixel_range, tuple(shape[:2]), lo, lo + self.config.max_disp) - np.int32(lo)
+        maps = check_pixel_range(pixel_range, tuple(shape[:2]), lo, lo + self.config.max_disp) - np.int32(lo)
+        return np.ascontiguousarray(maps[:, :, self._cut():])     # the columns :meth:`prepare` keeps
 
     def run(self, gl: np.ndarray, gr: np.ndarray, limits=None, bands=None) -> np.ndarray:
         """The chain on grey images already checked by :meth:`prepare`; ``limits`` from :meth:`limits`."""
@@ -151,7 +170,11 @@ class Predictor:
         if bands is not None:
             if not self.config.banded:
                 raise ConfigError("bands= needs a banded config (band.width > 0)")
-            return self.run(*self.prepare(left, right), limits, tuple(np.asarray(b, np.int32) for b in bands))
+            bl, br = (np.asarray(b, np.int32) for b in bands)
+            cut = self._cut()        # the columns :meth:`prepare` keeps: left x >= MIN, right u < W - MIN
+            if cut:
+                bl, br = np.ascontiguousarray(bl[:, cut:]), np.ascontiguousarray(br[:, :br.shape[1] - cut])
+            return self.run(*self.prepare(left, right), limits, (bl, br))
         rows = self.strip_rows(left)
         if rows is not None:
             return self.in_strips(left, right, rows, limits=limits)

@@ -47,6 +47,9 @@ def check_disp_range(disp_range, width: int | None = None) -> tuple[int, int] | 
     if width is not None and hi - lo >= width:
         raise StereoInputError(f"disp_range {lo}..{hi} spans {hi - lo} disparities, as many as the image is wide "
                                f"({width}); give a narrower range")
+    if width is not None and hi >= width:
+        raise StereoInputError(f"disp_range {lo}..{hi} reaches the image width {width}: a match x - d lies inside "
+                               f"the right image only for d < {width}; give MAX <= {width - 1}")
     return lo, hi
 
 
@@ -84,6 +87,33 @@ def shift_right_image(grey: np.ndarray, lo: int) -> np.ndarray:
     w = grey.shape[1]
     cols = np.clip(np.arange(w) - lo, 0, w - 1)
     return np.ascontiguousarray(grey[:, cols])
+
+
+def range_pair(gl: np.ndarray, gr: np.ndarray, lo: int, config: StereoConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The grey pair the chain searches for a range starting at ``lo`` (disparities lo <= d < MAX are
+    d - lo of the result), with the right image's real left edge where the chain puts it.
+
+    ``lo > 0``: the left image without its first ``lo`` columns and the right image without its
+    last ``lo`` (``left[:, lo:]``, ``right[:, :W - lo]``): pixel x of the result is x + lo of the
+    pair, and its match x - (d - lo) is the pair's x + lo - d, so a match leaves the result's right
+    image (x - d' < 0) exactly where it leaves the pair's, and the out-of-view strip (``cost.border``),
+    the left-right check and the coarse pass see the image's edge. The left columns x < lo have no
+    match inside the right image at any disparity of the range; the chain does not search them
+    (:class:`~stereojax.inference.predictor.Predictor` gives them the disparity of column lo and
+    confidence 0). Moving the right image by ``lo`` instead (:func:`shift_right_image`) invents
+    ``lo`` repeated columns at its left edge, which the chain takes for real ones: on Middlebury
+    scenes that cost up to 2.9 points > 3 px against [0, MAX) (docs/results.md, issue 55).
+    ``lo < 0``: the right image moved by ``lo`` (:func:`shift_right_image`); ``lo == 0``: the pair.
+    Raises a one-line :class:`StereoInputError` when fewer columns than the config's largest window
+    are left."""
+    if lo <= 0:
+        return gl, shift_right_image(gr, lo)
+    w = gl.shape[1]
+    need = max(min_image_size(config), config.max_disp + 1)
+    if w - lo < need:
+        raise StereoInputError(f"disp_range MIN {lo} leaves {w - lo} of the image's {w} columns to search, fewer "
+                               f"than the {need} the configuration needs; give a smaller MIN")
+    return np.ascontiguousarray(gl[:, lo:]), np.ascontiguousarray(gr[:, :w - lo])
 
 
 def _kind(arr: np.ndarray) -> str:

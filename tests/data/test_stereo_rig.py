@@ -190,3 +190,23 @@ def test_simulated_raw_pair_rectifies_back_to_the_scene(data_root):
            + fv * ((1 - fu) * grey[v0 + 1, u0] + fu * grey[v0 + 1, u0 + 1]))
     assert inside.mean() > 0.8
     assert np.median(np.abs(got - orig[ys[inside], xs[inside]])) < 6.0
+
+
+def test_predictor_and_sequence_take_raw_pairs_with_a_rectifier(chessboard, tmp_path):
+    """Predictor(rectifier=) and Sequence(rectifier=) equal rectifying first; log_rerun writes them."""
+    import stereojax
+
+    folder, rig, _ = chessboard
+    rect = Rectifier(rig)
+    raw_l, raw_r = cv2.imread(str(folder / "left02.jpg"), 0), cv2.imread(str(folder / "right02.jpg"), 0)
+    cfg = stereojax.preset("census", max_disp=32)
+    want = stereojax.Predictor(cfg)(*rect.rectify(raw_l, raw_r))
+    np.testing.assert_array_equal(stereojax.Predictor(cfg, rectifier=rect)(raw_l, raw_r), want)
+    frame = stereojax.Sequence(cfg, rectifier=rect).push(raw_l, raw_r)
+    np.testing.assert_array_equal(frame.disparity, stereojax.Sequence(cfg).push(*rect.rectify(raw_l, raw_r)).disparity)
+    pytest.importorskip("rerun", reason="rerun-sdk (the viewer extra) is not installed")
+    from rerun.chunk import RrdReader
+
+    path = stereojax.log_rerun(tmp_path / "py.rrd", [dict(name="chess", left=raw_l, disparity=want,
+                                                          calib=rect.calibration)])
+    assert {"/world/chess/disparity", "/world/chess/camera"} <= {c.entity_path for c in RrdReader(path).stream()}
