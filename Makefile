@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate results-evaluate bench native-floor train train-middlebury \
-        search-chain dense-distill dense-distill-final band-search middlebury-folds middlebury-folds-student middlebury-cascade augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain indoor-folds rectify-roundtrip sky-confidence dense-distill dense-distill-final band-search middlebury-folds middlebury-folds-student middlebury-cascade augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -122,6 +122,17 @@ middlebury-cascade: $(STAMP)  ## issue 38: the folds of middlebury-folds-student
 
 middlebury-folds: $(STAMP)  ## Middlebury, 3 folds: fine-tune the shipped KITTI model, search settings, score held-out scenes vs SGBM, neutral strip (~40 min) -> experiments/results/middlebury_folds_neutral.*
 	$(EXP)/middlebury_folds.py --data $(DATA) --init kitti2015 --border neutral
+
+indoor-folds: $(STAMP)  ## issue 52: 24 Middlebury scenes in 3 folds by family: reference rows, then each fold's model (train, search, bands or full, score); resumable, hours on 2 cores -> experiments/results/indoor_folds.{json,md}
+	$(EXP)/indoor_folds.py reference --data $(DATA)
+	for i in 0 1 2; do $(EXP)/indoor_folds.py fold $$i --data $(DATA) || exit 1; done
+	$(EXP)/indoor_folds.py table --data $(DATA)
+
+rectify-roundtrip: $(STAMP)  ## issue 54: KITTI pairs made raw on purpose, rectified by stereojax, depth vs the GT points (~3 min) -> experiments/results/rectify_roundtrip.{json,md}
+	$(EXP)/rectify_roundtrip.py --data $(DATA)
+
+sky-confidence: $(STAMP)  ## issue 55: saturated textureless sky under --min-confidence 0.3 on KITTI 000001-000030 (~6 min) -> experiments/results/sky_confidence.{json,md}
+	$(EXP)/sky_confidence.py --data $(DATA)
 
 compressed: $(STAMP)  ## issue 16: train the compressed candidates on KITTI 2015 1-15 (direct and distilled), score them, choose by experiments/PROTOCOL.md (~45 min) -> experiments/results/compressed.*
 	$(EXP)/compressed.py --data $(DATA)
