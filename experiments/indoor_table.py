@@ -86,9 +86,20 @@ def write_table(args, folds, shipped_trained, keys) -> None:
             record["folds"].append({"fold": i, **{k: s[k] for k in ("changes", "choice", "searched_on",
                                                                     "bands_vs_full_on_training")}})
     mean = {k: (float(np.mean(v)) if v else None) for k, v in means.items()}
-    table.append(["**mean**", "", ""] + [f"**{mean[k]:.2f}**" if mean[k] is not None else "–" for k in
+    n_all = sum(len(f) for f in folds)
+    table.append(["**mean**", "", ""] + [(f"**{mean[k]:.2f}**" if len(means[k]) == n_all else "(part)")
+                                         if mean[k] is not None else "–" for k in
                                          ("fold", "fold_bands", "fold_full", "shipped", "census", "census_full",
                                           "sgbm")])
+    both = [(r["fold_bands"]["all"]["bad3"], r["fold_full"]["all"]["bad3"], r["fold_bands"]["all"]["seconds"],
+             r["fold_full"]["all"]["seconds"]) for r in record["scenes"] if r["fold_bands"]["all"] and r["fold_full"]["all"]]
+    if both:
+        b, f, bs, fs = np.mean(both, axis=0)
+        lines.append(f"* bands against the full range on the {len(both)} held-out scenes scored with both: "
+                     f"{b:.2f} % against {f:.2f} % > 3 px (mean), {bs:.1f} s against {fs:.1f} s per scene (each "
+                     "run's time, compilation apart, on a CPU shared with other jobs)")
+        record["bands_vs_full_held_out"] = {"scenes": len(both), "bands": float(b), "full": float(f),
+                                            "bands_seconds": float(bs), "full_seconds": float(fs)}
     complete = total == sum(len(f) for f in folds)
     ratio = (np.mean([fm["model"] for fm in fold_means]) / np.mean([fm["sgbm"] for fm in fold_means])
              if fold_means else None)
