@@ -179,7 +179,7 @@ def test_kitti_folder_without_gt_predict_works_evaluate_says_what_is_missing(tmp
         "timings.json"}
     code, _, err = _cli(["evaluate", "--data", root, "--dataset", "kitti2015", *FAST, "--out", tmp_path / "e"],
                         capsys, "KITTI folder with images but no GT (evaluate)")
-    assert code == 2 and "no noc ground truth for 2 frame(s): 000000, 000001; nothing to evaluate" in _one_line(err)
+    assert code == 2 and "no ground truth for 2 frame(s): 000000, 000001; nothing to evaluate" in _one_line(err)
 
 
 def test_empty_data_folder(tmp_path, capsys):
