@@ -5,7 +5,12 @@
 // K = D): C_R(x, d) = C_L(x + d, d), read from the left pixel x + d's band (BIG where d lies
 // outside it), `invalid` where x + d lies beyond the real width. The result is the first d of
 // least cost (JAX's argmin), as an absolute disparity. Rows run on all threads.
+//
+// The full range reads the volume in its own order instead of along its diagonals: each left
+// pixel xl offers C(xl, d) to the right pixel xl - d, d ascending, and every right pixel keeps the
+// first least cost it was offered (one pass over the volume, the running minima of a row in L1).
 #include <algorithm>
+#include <cfloat>
 #include <vector>
 
 #include "../native_common.h"
@@ -39,6 +44,44 @@ SJ_INLINE void right_row(const float* crow, const int32_t* orow, const int32_t* 
   }
 }
 
+// The full range, rows [y0, y1): the running minimum of the right pixel x sits at i = W - 1 - x,
+// so the pixels xl - d (d = 0 .. K-1) that one left pixel serves are ascending in memory.
+SJ_CLONES void right_rows_full(const float* cost, int32_t* out, int w, int k, int width, float invalid, int y0,
+                               int y1) {
+  std::vector<float> best_v(w + k);
+  std::vector<int32_t> arg_v(w + k);
+  float* __restrict best = best_v.data();
+  int32_t* __restrict arg = arg_v.data();
+  const int wl = std::min(w, width);  // left pixels inside the real width
+  for (int y = y0; y < y1; ++y) {
+    std::fill(best, best + w + k, FLT_MAX);
+    std::fill(arg, arg + w + k, 0);
+    const float* crow = cost + static_cast<size_t>(y) * w * k;
+    for (int xl = 0; xl < wl; ++xl) {
+      const float* __restrict c = crow + static_cast<size_t>(xl) * k;
+      const int n = std::min(k, xl + 1);  // d <= xl: the right pixel xl - d lies in the image
+      float* __restrict b = best + (w - 1 - xl);
+      int32_t* __restrict a = arg + (w - 1 - xl);
+      for (int d = 0; d < n; ++d) {
+        const bool lt = c[d] < b[d];
+        b[d] = lt ? c[d] : b[d];
+        a[d] = lt ? d : a[d];
+      }
+    }
+    int32_t* o = out + static_cast<size_t>(y) * w;
+    for (int x = 0; x < w; ++x) {
+      const int i = w - 1 - x;
+      const int n_in = std::max(0, std::min(k, width - x));  // entries with x + d inside the width
+      int r = arg[i];
+      if (n_in == 0)
+        r = 0;
+      else if (n_in < k && invalid < best[i])
+        r = n_in;  // the first entry beyond the width costs `invalid`
+      o[x] = r;
+    }
+  }
+}
+
 SJ_CLONES void right_rows(const float* cost, const int32_t* off, const int32_t* roff, int32_t* out, int w, int k,
                           int width, bool banded, float invalid, int y0, int y1) {
   std::vector<float> c(k);
@@ -64,7 +107,10 @@ ffi::Error RightWtaImpl(ffi::Buffer<ffi::F32> cost, ffi::Buffer<ffi::S32> offset
   const int32_t* off = offset.typed_data();
   const int32_t* roff = right_offset.typed_data();
   int32_t* dst = out->typed_data();
-  parallel_for(h, threads, [&](int y0, int y1) { right_rows(c, off, roff, dst, w, k, wd, banded != 0, invalid, y0, y1); });
+  if (banded)
+    parallel_for(h, threads, [&](int y0, int y1) { right_rows(c, off, roff, dst, w, k, wd, true, invalid, y0, y1); });
+  else
+    parallel_for(h, threads, [&](int y0, int y1) { right_rows_full(c, dst, w, k, wd, invalid, y0, y1); });
   return ffi::Error::Success();
 }
 

@@ -96,21 +96,29 @@ SJ_INLINE float fresh(const float* __restrict c, float* __restrict out, int k) {
   return nm;
 }
 
-// A line of pixels' path costs (K entries each), their minima and band offsets. A path keeps one
-// line and overwrites it in place, row after row: each pixel's predecessor is first copied into
-// a small buffer with BIG margins (Ext), which also serves the band shift.
+// A line of pixels' path costs (K entries each, with one BIG entry before and after them), their
+// minima and band offsets. A pixel whose predecessor has the same band offset (always, over the
+// full range) reads the predecessor's entries where they lie; a band shift first copies them
+// into a small buffer with wider BIG margins (Ext).
 struct Line {
   std::vector<float> buf;
   std::vector<float> mins;
   std::vector<int32_t> offs;
   int k = 0;
+  size_t stride = 0;
   void init(int n, int k_) {
     k = k_;
-    buf.assign(static_cast<size_t>(n) * k, 0.f);
+    stride = static_cast<size_t>(k) + 2;
+    buf.assign(static_cast<size_t>(n) * stride, kBig);
     mins.assign(n, 0.f);
     offs.assign(n, 0);
   }
-  float* at(int i) { return buf.data() + static_cast<size_t>(i) * k; }
+  float* at(int i) { return buf.data() + static_cast<size_t>(i) * stride + 1; }
+  void swap(Line& o) {
+    buf.swap(o.buf);
+    mins.swap(o.mins);
+    offs.swap(o.offs);
+  }
 };
 
 // The predecessor's K entries with K + 2 BIG entries each side (a band shift |s| <= K + 1 then
@@ -127,6 +135,8 @@ struct Ext {
     for (int j = 0; j < k; ++j) mid[j] = prev[j];
     return mid;
   }
+  // the predecessor's entries as step() reads them: in place without a band shift
+  const float* pred(const float* prev, int s) { return s == 0 ? prev : load(prev); }
 };
 
 SJ_INLINE bool big_step(float a, float b, float thr) { return std::fabs(a - b) >= thr; }
@@ -187,8 +197,11 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
   const int n_row_paths = cx.dirs == 8 ? 3 : 1;
   Line sum;  // this sweep's paths of the row, summed; the horizontal path writes it first
   sum.init(w, k);
-  Line line[3];
+  // line[0]: the vertical path's row, written while vprev (the previous row) is read, then the two
+  // swap; the diagonals update their line in place (see below)
+  Line line[3], vprev;
   for (int p = 0; p < n_row_paths; ++p) line[p].init(w, k);
+  vprev.init(w, k);
   Ext ext;
   ext.init(k);
   RightPen pen_h, pen_v;
@@ -225,7 +238,7 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
           const int bl = big_step(lrow[x], lrow[xp], cx.thr);
           const int s = band_shift(cx, xo, op);
           const int at = w - 1 - x + xo;
-          const float* pv = ext.load(sum.at(xp));
+          const float* pv = ext.pred(sum.at(xp), s);
           if (adaptive)
             nm = step(pv, s, m, c, o, k, pen_h.p1[bl].data() + at, pen_h.p2[bl].data() + at, 0.f, 0.f);
           else
@@ -247,6 +260,7 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
         const int sx = p == 0 ? 0 : (p == 1 ? 1 : -1);  // the predecessor of x is x - sx
         const Pen& pen = p == 0 ? cx.pen[1] : cx.pen[2];
         Line& ln = line[p];
+        Line& src = p == 0 ? vprev : ln;
         // in place: a diagonal from the left (sx = 1) runs right to left, so that x - 1 still
         // holds the previous row when x reads it; from the right, left to right
         for (int t = 0; t < w; ++t) {
@@ -261,9 +275,9 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
             nm = fresh(c, o, k);
           } else {
             const int bl = yp_in && big_step(lrow[x], lprev[xp], cx.thr);
-            const int s = band_shift(cx, xo, ln.offs[xp]);
-            const float* pv = ext.load(ln.at(xp));
-            const float pm = ln.mins[xp];
+            const int s = band_shift(cx, xo, src.offs[xp]);
+            const float* pv = ext.pred(src.at(xp), s);
+            const float pm = src.mins[xp];
             if (sx == 0 && adaptive) {
               const int at = w - 1 - x + xo;
               nm = step(pv, s, pm, c, o, k, pen_v.p1[bl].data() + at, pen_v.p2[bl].data() + at, 0.f, 0.f);
@@ -278,6 +292,7 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
           for (int j = 0; j < k; ++j) sm[j] += o[j];
         }
       }
+      line[0].swap(vprev);
       started = true;
     }
 
@@ -285,13 +300,15 @@ SJ_INLINE void sweep_k(const Ctx& cx, int dy, Merge& merge) {
     float* orow_out = cx.out + static_cast<size_t>(y) * row_len;
     std::lock_guard<std::mutex> lock(merge.locks[y]);
     if (!merge.seen[y]) {
-      std::memcpy(orow_out, sum.at(0), row_len * sizeof(float));
+      for (int x = 0; x < w; ++x) std::memcpy(orow_out + static_cast<size_t>(x) * k, sum.at(x), k * sizeof(float));
       merge.seen[y] = 1;
     } else {
       const float dirs = static_cast<float>(cx.dirs);
-      const float* __restrict sm = sum.at(0);
-      float* __restrict dst = orow_out;
-      for (size_t j = 0; j < row_len; ++j) dst[j] = (dst[j] + sm[j]) / dirs;
+      for (int x = 0; x < w; ++x) {
+        const float* __restrict sm = sum.at(x);
+        float* __restrict dst = orow_out + static_cast<size_t>(x) * k;
+        for (int j = 0; j < k; ++j) dst[j] = (dst[j] + sm[j]) / dirs;
+      }
     }
   }
 }
