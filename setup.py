@@ -24,6 +24,7 @@ SOURCES = [
     "stereojax/disparity/winner_takes_all.cc",
     "stereojax/validation/confidence_measure.cc",
     "stereojax/filters/median.cc",
+    "stereojax/matching_cost/head.cc",
 ]
 
 

@@ -49,6 +49,7 @@ TARGETS = {
     "stereojax_wta": "StereojaxWta",
     "stereojax_confidence": "StereojaxConfidence",
     "stereojax_median": "StereojaxMedian",
+    "stereojax_head": "StereojaxHead",
 }
 
 

@@ -95,14 +95,13 @@ def naive_dense_cost(net: NetConfig, variables, fl, fr, max_disp: int) -> jax.Ar
     return jnp.stack(cols, axis=-1)
 
 
-def head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
-    """``f32[H, W, K]``: head cost 1 - s at the disparities ``cand`` ``i32[H, W, K]``.
+def head_at_xla(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int) -> jax.Array:
+    """The JAX kernel of :func:`head_at`.
 
-    fl, fr: tower features of the left and right view ``f32[H, W, F]``. The split first layer
-    is computed a few rows at a time (at most ``rows_per_batch``, and at most 64 MB of
-    pre-activation ``[rows, W, K, C1]``) inside ``lax.map``, so neither the projections of the
-    whole image (``2 x [H, W, C1]``, 2 GB on a KITTI frame) nor the pre-activations are ever
-    held at once; the work is the same as projecting once per image.
+    The split first layer is computed a few rows at a time (at most ``rows_per_batch``, and at
+    most 64 MB of pre-activation ``[rows, W, K, C1]``) inside ``lax.map``, so neither the
+    projections of the whole image (``2 x [H, W, C1]``, 2 GB on a KITTI frame) nor the
+    pre-activations are ever held at once; the work is the same as projecting once per image.
     """
     w, k = fl.shape[1], cand.shape[-1]
     c1 = model.cfg.widths[0]
@@ -116,6 +115,38 @@ def head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, row
         return 1.0 - jax.nn.sigmoid(logit)
 
     return jax.lax.map(row, (fl, fr, cand), batch_size=rows_per_batch)
+
+
+def head_params(variables, net: NetConfig) -> jax.Array:
+    """The dense head's parameters packed as the native kernel reads them: first_left kernel and
+    bias, first_right kernel, then each later layer's kernel and bias (``dense1``.., ``out``)."""
+    p = variables["params"]["head"]
+    parts = [p["first_left"]["kernel"], p["first_left"]["bias"], p["first_right"]["kernel"]]
+    for name in [f"dense{i}" for i in range(1, len(net.widths))] + ["out"]:
+        parts += [p[name]["kernel"], p[name]["bias"]]
+    return jnp.concatenate([x.reshape(-1).astype(jnp.float32) for x in parts])
+
+
+def head_at_native(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array) -> jax.Array:
+    """The native kernel (``head.cc``) of :func:`head_at_xla`: one row's projections at a time,
+    the candidates through the layers in small register-blocked matrix products."""
+    net = model.cfg
+    h, w, k = cand.shape
+    call = jax.ffi.ffi_call("stereojax_head", jax.ShapeDtypeStruct((h, w, k), jnp.float32), vmap_method="sequential")
+    return call(fl.astype(jnp.float32), fr.astype(jnp.float32), cand.astype(jnp.int32), head_params(variables, net),
+                widths=np.asarray(list(net.widths) + [1], np.int32), threads=np.int32(kernels_mod.threads()))
+
+
+def head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int,
+            kernels: str = "xla") -> jax.Array:
+    """``f32[H, W, K]``: head cost 1 - s at the disparities ``cand`` ``i32[H, W, K]``.
+
+    fl, fr: tower features of the left and right view ``f32[H, W, F]``. With the kernel of the
+    ``kernels`` setting (:mod:`stereojax.kernels`; the chain passes its config's, and the
+    default "xla" keeps the function differentiable for other callers)."""
+    return kernels_mod.select(kernels, functools.partial(head_at_native, model, variables),
+                              functools.partial(head_at_xla, model, variables, rows_per_batch=rows_per_batch),
+                              fl, fr, cand)
 
 
 def head_at_pixels(model, variables, fl, fr, ys, xs, cand, chunk: int = 2048) -> jax.Array:
@@ -202,7 +233,7 @@ def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, conf
     # a barrier keeps XLA from fusing the ranking into the head's loop (measured: 1.5x slower)
     ranked = jax.lax.optimization_barrier(ranked)
     cand = ranked[..., :k1]
-    cost = head_at(model, variables, fl, fr, cand, c.rows_per_tile)
+    cost = head_at(model, variables, fl, fr, cand, c.rows_per_tile, config.kernels)
     yy, xx = jnp.mgrid[:h, :w]
     vol = jnp.full((h, w, size), fill, jnp.float32).at[yy[..., None], xx[..., None], cand - base].set(cost)
     if m == 0:
@@ -298,5 +329,5 @@ def learned_volume(net: NetConfig, variables, features, ranked, config, offset=N
     if net.head == "cosine":
         raise ValueError("the cosine head runs over the full range only (set band.width = 0)")
     disp = offset[..., None] + jnp.arange(config.band.width, dtype=jnp.int32)
-    cost = head_at(MatchNet(net), variables, fl, fr, disp, config.cost.rows_per_tile)
+    cost = head_at(MatchNet(net), variables, fl, fr, disp, config.cost.rows_per_tile, config.kernels)
     return CostVolume.band(cost, offset, d, valid)
