@@ -1,10 +1,11 @@
 """The native CPU kernels: the one place that loads and registers them, and says which ran.
 
 The classical stages (SGM, CBCA, the census cost, the right view's WTA, the
-filling after the left-right check, the learned head's top-K candidate ranking, WTA, the confidence, the median filter) each have two kernels: the JAX kernel in the
+filling after the left-right check, the learned head's top-K candidate ranking, WTA, the confidence, the median filter, the
+learned head at its candidates) each have two kernels: the JAX kernel in the
 step's module (the reference, and the path on every platform other than the CPU) and a C++17
 kernel beside it (``semi_global.cc``, ``cross_based.cc``, ``census.cc``, ``right_view.cc``,
-``filling.cc``, ``ranking.cc``, ``winner_takes_all.cc``, ``confidence_measure.cc``, ``median.cc``), compiled into one
+``filling.cc``, ``ranking.cc``, ``winner_takes_all.cc``, ``confidence_measure.cc``, ``median.cc``, ``head.cc``), compiled into one
 shared library ``stereojax/_native*.so`` by ``pip install`` (setup.py) and called from inside the
 jitted chain as an XLA FFI custom call on the CPU. Each step's module offers one function that
 picks its kernel (:func:`select`): with native kernels chosen and loaded, it is
