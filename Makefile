@@ -23,7 +23,7 @@ DELTAS   ?= 0 0.03 0.04 0.05 0.06 0.07
 EXP      := $(PY) experiments
 
 .PHONY: help install test test-fast demo predict evaluate results-evaluate bench native-floor train train-middlebury \
-        search-chain indoor-folds rectify-roundtrip sky-confidence dense-distill dense-distill-final band-search middlebury-folds middlebury-folds-student middlebury-cascade augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
+        search-chain indoor-folds indoor-ship rectify-roundtrip sky-confidence dense-distill dense-distill-final band-search middlebury-folds middlebury-folds-student middlebury-cascade augment-compare compressed confidence self-training train-compact bench-anchors table1 sweep-delta table3 table4 figures depth-example report experiments clean
 
 help:  ## list the targets
 	@grep -E '^[a-z0-9-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -127,6 +127,9 @@ indoor-folds: $(STAMP)  ## issue 52: 24 Middlebury scenes in 3 folds by family: 
 	$(EXP)/indoor_folds.py reference --data $(DATA)
 	for i in 0 1 2; do $(EXP)/indoor_folds.py fold $$i --data $(DATA) || exit 1; done
 	$(EXP)/indoor_folds.py table --data $(DATA)
+
+indoor-ship: $(STAMP)  ## issue 52: the shipped `middlebury` model: kitti2015 fine-tuned on the 23 scenes (not Motorcycle), chain searched, bands or full range chosen, weights + card written (~40 min on 2 cores) -> stereojax/models/weights/middlebury_*
+	$(EXP)/indoor_folds.py ship --data $(DATA)
 
 rectify-roundtrip: $(STAMP)  ## issue 54: KITTI pairs made raw on purpose, rectified by stereojax, depth vs the GT points (~3 min) -> experiments/results/rectify_roundtrip.{json,md}
 	$(EXP)/rectify_roundtrip.py --data $(DATA)

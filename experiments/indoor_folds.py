@@ -158,12 +158,62 @@ def fold(args, load, i: int) -> None:
         score_scenes([name], both if small or i == 0 else chosen, load, runs, f"fold{i}")
 
 
+def chain_card(rec: dict) -> dict:
+    """The shipped card's chain settings: the searched config (bands or the full range, as chosen)
+    as overrides of ``preset("learned")``, section by section (what ``learned_config`` merges)."""
+    chosen = StereoConfig.from_dict(rec["config"])
+    if rec["choice"] == "full":
+        chosen = dataclasses.replace(chosen, band=BandConfig()).validate()
+    base, mine = stereojax.preset("learned").to_dict(), chosen.to_dict()
+    out = {}
+    for section, values in mine.items():
+        if isinstance(values, dict):
+            diff = {k: v for k, v in values.items() if base[section].get(k) != v}
+            if diff:
+                out[section] = diff
+        elif base[section] != values:
+            out[section] = values
+    return out
+
+
 def ship(args, load) -> None:
+    """Train the indoor model on the 23 scenes, search its chain, choose bands or the full range,
+    then write it as the shipped `middlebury` weights with its card (the folds' numbers from
+    experiments/results/indoor_folds.json, which `table` writes)."""
+    from stereojax.models import checkpoint
+    from stereojax.models.registry import SHIPPED, WEIGHTS_DIR
+
     runs = Path(args.runs)
     names = [n for f in FOLDS for n in f if n not in NEVER_TRAIN]
     run = runs / f"ship_s{args.seed}_{args.steps}"
     model = fit_fold(args, run, names, load, load_model(shipped_weights("kitti2015")))
-    search_fold(args, run, names, load, model)
+    rec = search_fold(args, run, names, load, model)
+    folds = json.loads((Path(args.out) / "indoor_folds.json").read_text())
+    name = SHIPPED["middlebury"]
+    checkpoint.save(WEIGHTS_DIR / f"{name}.msgpack", dict(model.variables), checkpoint.read_config(run / "checkpoint.msgpack"))
+    card = {
+        "chain": chain_card(rec),
+        "chain_searched_on": (f"its 23 training scenes of at most {SEARCH_MAX_PIXELS} pixels ({', '.join(rec['searched_on'])}), "
+                              f"SPACE_SMALL, {args.rounds} round from kitti2015's card: {rec['changes'] or 'no change'}; "
+                              f"bands {rec['bands_vs_full_on_training']['bands']['bad3']:.2f} vs full range "
+                              f"{rec['bands_vs_full_on_training']['full']['bad3']:.2f} % > 3 px there -> {rec['choice']}"),
+        "config": checkpoint.read_config(run / "checkpoint.msgpack"),
+        "training": json.loads((run / "train_summary.json").read_text()),
+        "init": "kitti2015 (the shipped KITTI model)",
+        "recipe": (f"issue 52's recipe (experiments/PROTOCOL.md, 'Indoor folds by family'): kitti2015 fine-tuned "
+                   f"{args.steps} steps at lr {args.lr} on 23 Middlebury scenes (every scene but Motorcycle, which "
+                   "stays held out for make demo), both views' non-occluded ground truth"),
+        "command": ".venv/bin/python experiments/indoor_folds.py ship (make indoor-ship)",
+        "folds": {"what": ("the recipe's 3 folds by family, each fold's model scored on its held-out scenes, all pixels, "
+                           "> 3 px % (experiments/results/indoor_folds.md)"),
+                  "mean_over_24_scenes": {k: round(folds["mean"][k], 2) for k in ("fold", "sgbm", "census", "shipped")},
+                  "fold_means": [{k: round(v, 2) for k, v in f.items()} for f in folds["targets"]["fold_means"]],
+                  "scenes_below_sgbm": f"{folds['targets']['wins']} of {folds['targets']['scenes_scored']}",
+                  "mean_ratio_to_sgbm": round(folds["targets"]["mean_ratio"], 3)},
+        "replaces": "the six-scene model of 2026-11-25 (Aloe_opencv, Cones, Reindeer, Teddy, Tsukuba, Venus)",
+    }
+    write_json(WEIGHTS_DIR / f"{name}.json", card)
+    print(f"shipped -> {WEIGHTS_DIR / name}.msgpack, chain {card['chain']}", flush=True)
 
 
 def main():
