@@ -488,7 +488,7 @@ def format_bench(r: dict) -> str:
              f"jax {r['jax']} ({r['backend']}), {r.get('machine', '')}"
              + (f"; kernels: {kernels_line(r)}" if "kernels" in r else ""), "",
              "All numbers from one run of `make bench` (`stereojax bench`); OpenCV StereoSGBM timed at the "
-             "start and the end of the run (median), so ratios compare like with like.", "",
+             "start and the end of the run (the faster of the two, so that a slow SGBM run never flatters a ratio).", "",
              "## Warm time per frame (after compilation), ratio to OpenCV SGBM", "",
              "| method | network | head evaluations / pixel | warm s | × SGBM | target |", "|---|---|---|---|---|---|",
              f"| OpenCV StereoSGBM (MODE_SGBM_3WAY, left-padded) | | | {sg:.3f} | 1x | |"]

@@ -51,6 +51,7 @@ TARGETS = {
     "stereojax_confidence": "StereojaxConfidence",
     "stereojax_median": "StereojaxMedian",
     "stereojax_head": "StereojaxHead",
+    "stereojax_head_band": "StereojaxHeadBand",
 }
 
 

@@ -96,8 +96,17 @@ struct Net {
   std::vector<const float*> w, b;  // the later layers (hidden..., out): kernel [Cin, Cout], bias
 };
 
+// vol (optional): the band volume [H, W, size] the costs go into as well, `fill` everywhere else,
+// entry cand - off(y, x) of each pixel (candidates outside [0, size) are dropped, as JAX drops them)
+struct Band {
+  const int32_t* off = nullptr;
+  float* vol = nullptr;
+  int size = 0;
+  float fill = 1.f;
+};
+
 SJ_CLONES void head_rows(const Net& net, const float* fl, const float* fr, const int32_t* cand, float* cost, int w,
-                         int k, int y0, int y1) {
+                         int k, const Band& band, int y0, int y1) {
   const int c1 = net.widths[0];
   int widest = 0;
   for (int c : net.widths) widest = std::max(widest, c);
@@ -151,18 +160,23 @@ SJ_CLONES void head_rows(const Net& net, const float* fl, const float* fr, const
       }
       for (int i = 0; i < n; ++i) orow[p0 + i] = 1.f - 1.f / (1.f + std::exp(-src[i]));
     }
+    if (band.vol) {
+      float* vrow = band.vol + static_cast<size_t>(y) * w * band.size;
+      std::fill(vrow, vrow + static_cast<size_t>(w) * band.size, band.fill);
+      const int32_t* orow_off = band.off + static_cast<size_t>(y) * w;
+      for (int x = 0; x < w; ++x)
+        for (int j = 0; j < k; ++j) {
+          const int e = crow[x * k + j] - orow_off[x];
+          if (e >= 0 && e < band.size) vrow[static_cast<size_t>(x) * band.size + e] = orow[x * k + j];
+        }
+    }
   }
 }
 
-ffi::Error HeadImpl(ffi::Buffer<ffi::F32> fl, ffi::Buffer<ffi::F32> fr, ffi::Buffer<ffi::S32> cand,
-                    ffi::Buffer<ffi::F32> params, ffi::ResultBuffer<ffi::F32> out, ffi::Span<const int32_t> widths,
-                    int32_t threads) {
-  int h, w, f, hc, wc, k;
-  dims3(fl, h, w, f);
-  dims3(cand, hc, wc, k);
-  if (hc != h || wc != w) return ffi::Error::InvalidArgument("head: candidates and features differ in size");
-  if (widths.size() < 2 || widths.back() != 1) return ffi::Error::InvalidArgument("head: widths must end in 1");
-  Net net;
+// The network's layout from the packed parameters (head_params in learned.py); an error message
+// or nullptr.
+const char* parse_net(Net& net, int f, ffi::Span<const int32_t> widths, const ffi::Buffer<ffi::F32>& params) {
+  if (widths.size() < 2 || widths.back() != 1) return "head: widths must end in 1";
   net.f = f;
   net.widths.assign(widths.begin(), widths.end());
   const float* p = params.typed_data();
@@ -180,13 +194,45 @@ ffi::Error HeadImpl(ffi::Buffer<ffi::F32> fl, ffi::Buffer<ffi::F32> fr, ffi::Buf
     p += net.widths[l + 1];
   }
   if (p - params.typed_data() != static_cast<ptrdiff_t>(params.element_count()))
-    return ffi::Error::InvalidArgument("head: the parameters do not match the widths");
+    return "head: the parameters do not match the widths";
+  return nullptr;
+}
+
+ffi::Error run_head(ffi::Buffer<ffi::F32> fl, ffi::Buffer<ffi::F32> fr, ffi::Buffer<ffi::S32> cand,
+                    ffi::Buffer<ffi::F32> params, float* cost, ffi::Span<const int32_t> widths, int32_t threads,
+                    const Band& band) {
+  int h, w, f, hc, wc, k;
+  dims3(fl, h, w, f);
+  dims3(cand, hc, wc, k);
+  if (hc != h || wc != w) return ffi::Error::InvalidArgument("head: candidates and features differ in size");
+  Net net;
+  if (const char* err = parse_net(net, f, widths, params)) return ffi::Error::InvalidArgument(err);
   const float* pl = fl.typed_data();
   const float* pr = fr.typed_data();
   const int32_t* pc = cand.typed_data();
-  float* dst = out->typed_data();
-  parallel_for(h, threads, [&](int y0, int y1) { head_rows(net, pl, pr, pc, dst, w, k, y0, y1); });
+  parallel_for(h, threads, [&](int y0, int y1) { head_rows(net, pl, pr, pc, cost, w, k, band, y0, y1); });
   return ffi::Error::Success();
+}
+
+ffi::Error HeadImpl(ffi::Buffer<ffi::F32> fl, ffi::Buffer<ffi::F32> fr, ffi::Buffer<ffi::S32> cand,
+                    ffi::Buffer<ffi::F32> params, ffi::ResultBuffer<ffi::F32> out, ffi::Span<const int32_t> widths,
+                    int32_t threads) {
+  return run_head(fl, fr, cand, params, out->typed_data(), widths, threads, Band{});
+}
+
+// The same, and the band volume the costs go into (learned.ranked_dense_cost's scatter).
+ffi::Error HeadBandImpl(ffi::Buffer<ffi::F32> fl, ffi::Buffer<ffi::F32> fr, ffi::Buffer<ffi::S32> cand,
+                        ffi::Buffer<ffi::F32> params, ffi::Buffer<ffi::S32> offset, ffi::ResultBuffer<ffi::F32> out,
+                        ffi::ResultBuffer<ffi::F32> vol, ffi::Span<const int32_t> widths, float fill,
+                        int32_t threads) {
+  int hv, wv, size;
+  dims3(*vol, hv, wv, size);
+  Band band;
+  band.off = offset.typed_data();
+  band.vol = vol->typed_data();
+  band.size = size;
+  band.fill = fill;
+  return run_head(fl, fr, cand, params, out->typed_data(), widths, threads, band);
 }
 
 }  // namespace
@@ -201,4 +247,18 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(StereojaxHead, stereojax::HeadImpl,
                                   .Arg<xla::ffi::Buffer<xla::ffi::F32>>()  // the head's parameters, packed
                                   .Ret<xla::ffi::Buffer<xla::ffi::F32>>()  // cost 1 - s [H, W, K]
                                   .Attr<xla::ffi::Span<const int32_t>>("widths")
+                                  .Attr<int32_t>("threads"));
+
+SJ_EXPORT(StereojaxHeadBand);
+XLA_FFI_DEFINE_HANDLER_SYMBOL(StereojaxHeadBand, stereojax::HeadBandImpl,
+                              xla::ffi::Ffi::Bind()
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F32>>()  // left features [H, W, F]
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F32>>()  // right features [H, W, F]
+                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()  // candidates [H, W, K]
+                                  .Arg<xla::ffi::Buffer<xla::ffi::F32>>()  // the head's parameters, packed
+                                  .Arg<xla::ffi::Buffer<xla::ffi::S32>>()  // band offsets [H, W] (0: full range)
+                                  .Ret<xla::ffi::Buffer<xla::ffi::F32>>()  // cost 1 - s [H, W, K]
+                                  .Ret<xla::ffi::Buffer<xla::ffi::F32>>()  // band volume [H, W, size]
+                                  .Attr<xla::ffi::Span<const int32_t>>("widths")
+                                  .Attr<float>("fill")
                                   .Attr<int32_t>("threads"));

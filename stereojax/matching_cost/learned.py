@@ -137,6 +137,39 @@ def head_at_native(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Arr
                 widths=np.asarray(list(net.widths) + [1], np.int32), threads=np.int32(kernels_mod.threads()))
 
 
+def head_band_native(model, variables, fl, fr, cand, offset, size: int, fill: float):
+    """The native kernel of :func:`head_band_xla`: the head's costs and the band volume from one
+    call (``head.cc``, StereojaxHeadBand)."""
+    net = model.cfg
+    h, w, k = cand.shape
+    call = jax.ffi.ffi_call("stereojax_head_band", (jax.ShapeDtypeStruct((h, w, k), jnp.float32),
+                                                   jax.ShapeDtypeStruct((h, w, size), jnp.float32)),
+                            vmap_method="sequential")
+    return call(fl.astype(jnp.float32), fr.astype(jnp.float32), cand.astype(jnp.int32), head_params(variables, net),
+                offset.astype(jnp.int32), widths=np.asarray(list(net.widths) + [1], np.int32),
+                fill=np.float32(fill), threads=np.int32(kernels_mod.threads()))
+
+
+def head_band_xla(model, variables, fl, fr, cand, offset, size: int, fill: float, rows_per_batch: int):
+    """(cost ``f32[H, W, K]`` of :func:`head_at_xla`, the volume ``f32[H, W, size]`` that holds
+    each cost at entry cand - offset and ``fill`` elsewhere)."""
+    h, w, _ = cand.shape
+    cost = head_at_xla(model, variables, fl, fr, cand, rows_per_batch)
+    yy, xx = jnp.mgrid[:h, :w]
+    vol = jnp.full((h, w, size), fill, jnp.float32).at[yy[..., None], xx[..., None], cand - offset[..., None]].set(cost)
+    return cost, vol
+
+
+def head_band(model, variables, fl, fr, cand, offset, size: int, fill: float, rows_per_batch: int,
+              kernels: str = "xla"):
+    """:func:`head_band_xla` with the kernel of the ``kernels`` setting: the head at the
+    candidates and the band volume they fill, in one native call on the CPU."""
+    return kernels_mod.select(kernels, functools.partial(head_band_native, model, variables, size=size, fill=fill),
+                              functools.partial(head_band_xla, model, variables, size=size, fill=fill,
+                                                rows_per_batch=rows_per_batch),
+                              fl, fr, cand, offset)
+
+
 def head_at(model, variables, fl: jax.Array, fr: jax.Array, cand: jax.Array, rows_per_batch: int,
             kernels: str = "xla") -> jax.Array:
     """``f32[H, W, K]``: head cost 1 - s at the disparities ``cand`` ``i32[H, W, K]``.
@@ -229,13 +262,11 @@ def ranked_dense_cost(net: NetConfig, variables, fl, fr, ranked: jax.Array, conf
     h, w, _ = fl.shape
     m = int(c.unsure_share * h * w) if k2 > k1 else 0
     size = d if offset is None else config.band.width
-    base = 0 if offset is None else offset[..., None]
     # a barrier keeps XLA from fusing the ranking into the head's loop (measured: 1.5x slower)
     ranked = jax.lax.optimization_barrier(ranked)
     cand = ranked[..., :k1]
-    cost = head_at(model, variables, fl, fr, cand, c.rows_per_tile, config.kernels)
-    yy, xx = jnp.mgrid[:h, :w]
-    vol = jnp.full((h, w, size), fill, jnp.float32).at[yy[..., None], xx[..., None], cand - base].set(cost)
+    off = jnp.zeros((h, w), jnp.int32) if offset is None else offset
+    cost, vol = head_band(model, variables, fl, fr, cand, off, size, fill, c.rows_per_tile, config.kernels)
     if m == 0:
         return vol
     unsure = cost.min(axis=-1)                                                # best head cost found

@@ -77,5 +77,29 @@ def test_learned_chain_calls_the_native_head_only_with_native_kernels(data_root)
         fn = jax.jit(lambda a, b: chain.front(a, b, cfg, model.variables, model.net).vol.cost)
         text = fn.lower(jnp.asarray(left), jnp.asarray(right)).as_text()
         calls[kernels] = set(re.findall(r"custom_call @(stereojax_\w+)", text))
-    assert "stereojax_head" in calls["native"], calls["native"]
+    assert "stereojax_head_band" in calls["native"], calls["native"]
     assert not calls["xla"], calls["xla"]
+
+
+def test_head_band_native_fills_the_same_band_volume(data_root):
+    """The native head that also writes the band volume (ranked_dense_cost's scatter): the same
+    costs, the same volume (the costs at cand - offset, the fill elsewhere), banded and full range."""
+    require_native()
+    model = load_model(shipped_weights("kitti2015_compact"))
+    _, left, right = nc.real_pairs(data_root, padded=False)[1]
+    fl, fr = learned.tower_features(model.net, model.variables, jnp.asarray(left), jnp.asarray(right))
+    h, w = left.shape
+    rng = np.random.default_rng(2)
+    for size, off in ((nc.K, rng.integers(0, nc.D - nc.K, (h, w))), (nc.D, np.zeros((h, w), int))):
+        # distinct candidates in each pixel's band, as the ranking gives them
+        pick = np.argsort(rng.random((h, w, size)), axis=-1)[..., :5]
+        cand = jnp.asarray((off[..., None] + pick).astype(np.int32))
+        off = jnp.asarray(off.astype(np.int32))
+        out = {}
+        for kernels in ("native", "xla"):
+            fn = jax.jit(lambda a, b, c, o, k=kernels: learned.head_band(MatchNet(model.net), model.variables, a, b, c, o,
+                                                                         size, 0.75, 8, k))
+            out[kernels] = [np.asarray(x) for x in fn(fl, fr, cand, off)]
+        _check(out["native"][0], out["xla"][0], f"head_band cost size={size}")
+        _check(out["native"][1], out["xla"][1], f"head_band volume size={size}")
+        assert (out["native"][1] == 0.75).sum() == h * w * (size - 5)
