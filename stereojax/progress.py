@@ -19,8 +19,10 @@ class Phases:
     def start(self, what: str):
         self._t0, self._what = time.perf_counter(), what
         if not self.quiet:
-            print(f"stereojax: {what} ...", end="", flush=True)
+            # open before the print: a Ctrl-C that lands right after it (the signal is handled at
+            # the next bytecode) must still find the line open
             self._open = True
+            print(f"stereojax: {what} ...", end="", flush=True)
 
     def done(self) -> float:
         secs = time.perf_counter() - self._t0
