@@ -147,12 +147,33 @@ def predict_pair(left_path, right_path, target: Path, resolve: Callable, calib=N
         with recording() as warned:
             return _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
                                  check_rectified, tile, disp_range, max_depth, warned, sequence, rectifier, frame)
+    except Exception as exc:
+        if not _caused_by_interrupt(exc):
+            raise
+        _interrupted(phases)
+        raise KeyboardInterrupt from exc
     except KeyboardInterrupt:      # Ctrl-C on a single pair (a batch turns signals into Interrupted)
-        if phases is not None and hasattr(phases, "interrupted"):
-            phases.interrupted()   # the message that follows starts on its own line
-        from stereojax.app.outputs import remove_if_empty
-        remove_if_empty()          # an --out folder this run made and left empty goes
+        _interrupted(phases)
         raise
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether a Ctrl-C is behind ``exc``: a KeyboardInterrupt raised inside a C callback (numpy's
+    dtype lookup while JAX traces, measured) comes out as a SystemError caused by it."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _interrupted(phases) -> None:
+    if phases is not None and hasattr(phases, "interrupted"):
+        phases.interrupted()   # the message that follows starts on its own line
+    from stereojax.app.outputs import remove_if_empty
+    remove_if_empty()          # an --out folder this run made and left empty goes
 
 
 def _predict_pair(left_path, right_path, target, resolve, calib, ply, phases, record, min_confidence,
